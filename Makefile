@@ -1,0 +1,35 @@
+# `make run` and `make test` each create or reuse .venv and install the package with its
+# test extras, so a fresh clone needs nothing else.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+OUT ?= out/run
+
+export DRAKE_ALLOW_NETWORK ?= meshcat
+export MPLBACKEND ?= Agg
+
+.PHONY: run test lint bench clean
+
+$(STAMP): pyproject.toml
+	@# Drake's VTK renderer draws headless through EGL; Debian ships it as libegl1.
+	@ldconfig -p | grep -q 'libEGL.so.1' || { command -v apt-get >/dev/null && \
+	  (apt-get install -y -qq libegl1 libegl-mesa0 || { apt-get update -qq && apt-get install -y -qq libegl1 libegl-mesa0; }); } || \
+	  { echo 'error: libEGL.so.1 is missing; install libegl1 (Debian/Ubuntu) for the simulated sensor'; exit 1; }
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/lrnbv run --planner heu --object horizontal_box --seed 0 --out $(OUT)
+
+test: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest -n 2 -q
+
+bench: $(STAMP)
+	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) out
