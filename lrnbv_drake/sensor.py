@@ -11,6 +11,11 @@ Conventions (docs/sensor-model.md gives the sources):
   `ZoneGeometry` holds the flips that map a real board's raw order to the row-major
   (row = +y, column = +x) order used here; a simulated sensor with default flips emits row-major.
 - Distances are perpendicular (z-depth), as the device reports them, not radial.
+
+The second half is the simulated device's reduction: `zone_readings` turns a grid of
+perpendicular depths sampled over each zone's footprint into the frame the device would report
+(nearest sizeable surface cluster, range noise, status), so the simulator's only Drake-specific
+part is producing that grid (`systems/tof_sensor.py` renders it).
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ import numpy as np
 
 #: Target statuses the device marks as a valid range (UM3109: "5 & 9 means ranging OK").
 VALID_STATUSES: tuple[int, ...] = (5, 9)
+#: Status of a plainly valid range; the simulated sensor reports it for every valid zone.
+STATUS_VALID = 5
 #: Status the driver writes when no target is detected in a zone.
 STATUS_NO_TARGET = 255
 #: Ranging limits of the device, mm (DS14161: 2 to 400 cm per zone).
@@ -149,14 +156,17 @@ class ZoneGeometry:
         tx, ty = np.meshgrid(t, t, indexing="xy")
         return np.stack([tx, ty, np.ones_like(tx)], axis=-1)
 
+    def sub_angles_rad(self, k: int) -> np.ndarray:
+        """(res*k,) angles along either axis of k sub-rays per zone, evenly spaced in angle and
+        centred in their cells, zone by zone. k = 1 gives the zone centres."""
+        edges = self.zone_edges_rad()
+        step = (edges[1] - edges[0]) / k
+        return (edges[:-1, None] + (np.arange(k) + 0.5) * step).reshape(-1)
+
     def sub_directions(self, k: int) -> np.ndarray:
         """(res, res, k, k, 3) (tan ax, tan ay, 1) of k x k sub-rays evenly spaced in angle over
         each zone's footprint, row-major. k = 1 gives the zone centres."""
-        edges = self.zone_edges_rad()
-        step = (edges[1] - edges[0]) / k
-        offsets = (np.arange(k) + 0.5) * step
-        ang = (edges[:-1, None] + offsets[None, :]).reshape(-1)  # (res*k,)
-        t = np.tan(ang)
+        t = np.tan(self.sub_angles_rad(k))
         tx, ty = np.meshgrid(t, t, indexing="xy")  # (res*k, res*k), [row, col]
         d = np.stack([tx, ty, np.ones_like(tx)], axis=-1)
         res = self.resolution
@@ -179,3 +189,169 @@ class ZoneGeometry:
         pts = self.directions() * d[..., None]
         pts[~valid] = np.nan
         return pts.reshape(-1, 3), valid.reshape(-1)
+
+
+# --- Simulated device ------------------------------------------------------------------------
+
+
+@dc.dataclass(frozen=True)
+class NoiseModel:
+    """Range noise of one zone reading, sigma(d) = max(sigma0, k * d).
+
+    The form and the defaults are an assumption (notes 1.5: sigma0 about 5-10 mm, k about
+    1-2 %), to be fitted on the real board against a flat target at 0.1-1.0 m.
+
+    Args:
+        sigma0_mm: noise floor, mm.
+        k: growth with distance (0.015 is 1.5 % of the distance).
+    """
+
+    sigma0_mm: float = 5.0
+    k: float = 0.015
+
+    def __post_init__(self) -> None:
+        if self.sigma0_mm < 0 or self.k < 0:
+            raise ValueError(f"NoiseModel needs sigma0_mm >= 0 and k >= 0; got {self}")
+
+    def sigma_mm(self, distance_mm: np.ndarray | float) -> np.ndarray:
+        """Standard deviation of a reading at `distance_mm`, mm."""
+        return np.maximum(self.sigma0_mm, self.k * np.asarray(distance_mm, dtype=np.float64))
+
+
+@dc.dataclass
+class SensorModelParams:
+    """What the simulated sensor reports for a given sampled scene (docs/sensor-model.md).
+
+    Args:
+        geometry: zone layout and the raw-order flips of the simulated board.
+        subsamples: sub-samples per zone side; k x k samples, evenly spaced in angle, stand in
+            for each zone's footprint (8 gives 8x8, about 0.7 degrees apart).
+        min_share: smallest share of a zone's samples a surface cluster must hold to be
+            reported; a nearer cluster with less is ignored, as a weak sliver would be on the
+            device.
+        cluster_gap_mm: depth samples (sorted) closer than this to the next one belong to the
+            same surface cluster. 25 mm: a box or step taller than that stands out from the
+            surface behind it, while a surface seen obliquely stays one cluster.
+        max_incidence_deg: widens the gap with depth so that a plane seen up to this angle from
+            its normal stays one cluster at any range (neighbouring samples on it differ by
+            about d * tan(incidence) * sample pitch, which outgrows a fixed gap beyond ~0.7 m).
+        min_range_mm: nearest valid reading (DS14161: 2 cm).
+        max_range_mm: farthest valid reading (DS14161: 400 cm).
+        noise: range noise model.
+    """
+
+    geometry: ZoneGeometry = dc.field(default_factory=ZoneGeometry)
+    subsamples: int = 8
+    min_share: float = 0.25
+    cluster_gap_mm: float = 25.0
+    max_incidence_deg: float = 70.0
+    min_range_mm: int = MIN_RANGE_MM
+    max_range_mm: int = MAX_RANGE_MM
+    noise: NoiseModel = dc.field(default_factory=NoiseModel)
+
+    def __post_init__(self) -> None:
+        if self.subsamples < 1:
+            raise ValueError(f"subsamples must be >= 1; got {self.subsamples}")
+        if not 0 < self.min_share <= 1:
+            raise ValueError(f"min_share must be in (0, 1]; got {self.min_share}")
+        if self.cluster_gap_mm <= 0:
+            raise ValueError(f"cluster_gap_mm must be > 0; got {self.cluster_gap_mm}")
+        if not 0 <= self.max_incidence_deg < 90:
+            raise ValueError(f"max_incidence_deg must be in [0, 90); got {self.max_incidence_deg}")
+        if not 0 <= self.min_range_mm < self.max_range_mm:
+            raise ValueError(
+                f"need 0 <= min_range_mm < max_range_mm; got {self.min_range_mm}, "
+                f"{self.max_range_mm}"
+            )
+
+
+def frame_rng(seed: int, sequence: int) -> np.random.Generator:
+    """The noise stream of frame `sequence` of a sensor seeded with `seed`: the same pair gives
+    the same frame whatever else has drawn random numbers."""
+    return np.random.default_rng([seed, sequence])
+
+
+def cluster_depths(sub_depth_m: np.ndarray, params: SensorModelParams) -> np.ndarray:
+    """Noise-free depth each zone would report: the median of the nearest surface cluster that
+    holds at least `min_share` of the zone's samples.
+
+    Args:
+        sub_depth_m: (res, res, k, k) perpendicular depths, metres, over each zone's footprint,
+            row-major zones; inf, NaN or <= 0 where nothing returns.
+        params: sensor model.
+
+    Returns:
+        (res, res) depths, metres, row-major; NaN where no cluster holds enough of the zone.
+    """
+    res, k = params.geometry.resolution, params.subsamples
+    sub = np.asarray(sub_depth_m, dtype=np.float64)
+    if sub.shape != (res, res, k, k):
+        raise ValueError(f"sub_depth_m has shape {sub.shape}; expected {(res, res, k, k)}")
+    n_zones, n_samples = res * res, k * k
+    # No return sorts last as inf and never joins a finite cluster (inf - d > any gap).
+    s = np.sort(np.where(sub > 0, sub, np.inf).reshape(n_zones, n_samples), axis=1)
+    finite = np.isfinite(s)
+
+    sample_pitch = np.deg2rad(params.geometry.zone_deg) / k
+    slope = np.tan(np.deg2rad(params.max_incidence_deg)) * sample_pitch
+    gap = np.maximum(params.cluster_gap_mm / 1000.0, slope * s[:, :-1])
+    with np.errstate(invalid="ignore"):  # inf - inf between no-return samples
+        starts = np.diff(s, axis=1) > gap
+    labels = np.concatenate(
+        [np.zeros((n_zones, 1), np.int64), np.cumsum(starts, axis=1)], axis=1
+    )  # cluster index per sorted sample, nearest cluster 0
+
+    zone = np.arange(n_zones)
+    flat = labels + zone[:, None] * n_samples
+    counts = np.bincount(flat[finite], minlength=n_zones * n_samples).reshape(n_zones, -1)
+    sizeable = counts >= params.min_share * n_samples
+    chosen = np.argmax(sizeable, axis=1)  # nearest sizeable cluster (0 if there is none)
+    found = sizeable[zone, chosen]
+
+    # Sorted, so the chosen cluster's samples are contiguous from `first`.
+    first = np.argmax(labels == chosen[:, None], axis=1)
+    n = np.maximum(counts[zone, chosen], 1)
+    median = 0.5 * (s[zone, first + (n - 1) // 2] + s[zone, first + n // 2])
+    return np.where(found, median, np.nan).reshape(res, res)
+
+
+def zone_readings(
+    sub_depth_m: np.ndarray,
+    params: SensorModelParams,
+    rng: np.random.Generator,
+    sequence: int = 0,
+    timestamp_us: int = 0,
+) -> ToFFrame:
+    """The frame the device reports for a scene sampled over each zone's footprint.
+
+    Per zone: the depth of the nearest sizeable surface cluster (`cluster_depths`), status 5
+    when it lies within [min_range_mm, max_range_mm] and 255 otherwise (also where no cluster
+    holds `min_share`); Gaussian noise of the noise model's sigma, drawn from `rng` for every
+    zone in row-major order, added and rounded to whole mm (negative readings clamp to 0, as
+    in the ULD); `sigma_mm` is the model's sigma (0 where no target).
+
+    Args:
+        sub_depth_m: (res, res, k, k) perpendicular depths, metres, row-major zones; inf, NaN
+            or <= 0 where nothing returns.
+        params: sensor model.
+        rng: noise source; `frame_rng(seed, sequence)` for a reproducible sensor.
+        sequence: frame counter to stamp.
+        timestamp_us: capture time to stamp, microseconds.
+
+    Returns:
+        The frame in the geometry's raw zone order.
+    """
+    depth_mm = cluster_depths(sub_depth_m, params) * 1000.0
+    noise = rng.standard_normal(depth_mm.shape)
+    with np.errstate(invalid="ignore"):  # NaN where no cluster compares False
+        valid = (depth_mm >= params.min_range_mm) & (depth_mm <= params.max_range_mm)
+    sigma = params.noise.sigma_mm(np.where(valid, depth_mm, 0.0))
+    reading = np.clip(np.rint(depth_mm + sigma * noise), 0, np.iinfo(np.int16).max)
+    geometry = params.geometry
+    return ToFFrame(
+        distance_mm=geometry.to_raw(np.where(valid, reading, 0)),
+        status=geometry.to_raw(np.where(valid, STATUS_VALID, STATUS_NO_TARGET)),
+        sigma_mm=geometry.to_raw(np.where(valid, np.rint(sigma), 0)),
+        sequence=sequence,
+        timestamp_us=timestamp_us,
+    )
