@@ -6,6 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out/run
 
+# Offline by default: Meshcat may listen on localhost, nothing may be downloaded.
 export DRAKE_ALLOW_NETWORK ?= meshcat
 export MPLBACKEND ?= Agg
 

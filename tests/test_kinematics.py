@@ -9,12 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
 
 from lrnbv_drake import kinematics as kin
-from lrnbv_drake.resources import MODELS_DIR, add_models_package, package_url
+from lrnbv_drake.resources import MODELS_DIR, make_parser, package_url
 
 
 def _random_q(n: int, seed: int) -> np.ndarray:
@@ -33,7 +32,7 @@ def station():
     """(plant, scene_graph, diagram, context) with the UR5e's base_link welded to the world."""
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
-    add_models_package(Parser(plant)).AddModels(url=package_url("ur5e/ur5e.urdf"))
+    make_parser(plant).AddModels(url=package_url("ur5e/ur5e.urdf"))
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("base_link"))
     plant.Finalize()
     diagram = builder.Build()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import os
 import re
 import sys
 from pathlib import Path
@@ -28,13 +29,12 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.parsing import (
     LoadModelDirectives,
     LoadModelDirectivesFromString,
-    Parser,
     ProcessModelDirectives,
 )
 from pydrake.multibody.plant import MultibodyPlant
 
 from lrnbv_drake import objects
-from lrnbv_drake.resources import MODELS_DIR, add_models_package
+from lrnbv_drake.resources import MODELS_DIR, make_parser
 
 OBJECTS_DIR = MODELS_DIR / "objects"
 CELL_DIR = MODELS_DIR / "cell"
@@ -310,7 +310,7 @@ def shapes_in_body(plant: MultibodyPlant, scene_graph: SceneGraph, body_name: st
 def parse_alone(sdf: str) -> tuple[MultibodyPlant, SceneGraph]:
     plant, scene_graph = MultibodyPlant(0.0), SceneGraph()
     plant.RegisterAsSourceForSceneGraph(scene_graph)
-    add_models_package(Parser(plant)).AddModels(str(CELL_DIR / sdf))
+    make_parser(plant).AddModels(str(CELL_DIR / sdf))
     return plant, scene_graph
 
 
@@ -382,7 +382,7 @@ def process_cell(
     """A finalized plant from directives `text`, with an optional extra package folder."""
     plant, scene_graph = MultibodyPlant(0.0), SceneGraph()
     plant.RegisterAsSourceForSceneGraph(scene_graph)
-    parser = add_models_package(Parser(plant))
+    parser = make_parser(plant)
     if extra_package is not None:
         parser.package_map().AddPackageXml(str(extra_package / "package.xml"))
     ProcessModelDirectives(LoadModelDirectivesFromString(text), parser)
@@ -451,3 +451,18 @@ def test_drake_renderer_accepts_exported_objs(tmp_path: Path) -> None:
         properties.AddProperty("label", "id", RenderLabel(1))
         instance.set_perception_properties(properties)
         scene_graph.RegisterAnchoredGeometry(source, instance)
+
+
+def test_models_never_need_the_network(monkeypatch):
+    # With networking off, the whole cell still loads: nothing refers to a remote package.
+    monkeypatch.setenv("DRAKE_ALLOW_NETWORK", "none")
+    for path in MODELS_DIR.rglob("*"):
+        if path.suffix in (".urdf", ".sdf", ".yaml", ".xml"):
+            assert "package://drake" not in path.read_text(), path
+    plant = MultibodyPlant(0.0)
+    parser = make_parser(plant)
+    assert not parser.package_map().Contains("drake_models")
+    ProcessModelDirectives(LoadModelDirectives(str(CELL_DIR / "cell.dmd.yaml")), plant, parser)
+    plant.Finalize()
+    assert plant.num_positions() == 6
+    assert os.environ["DRAKE_ALLOW_NETWORK"] == "none"

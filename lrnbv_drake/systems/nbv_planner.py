@@ -1,0 +1,237 @@
+"""NbvPlanner: the LeafSystem that drives an episode.
+
+A state machine stepped by a periodic unrestricted update:
+
+    PLAN    ask the policy for ranked viewpoints; plan a motion to the first reachable one
+    MOVE    play the trajectory on `position_command` until it ends
+    SETTLE  wait for a frame captured after the arm stopped (`settle_frames` periods later)
+    CAPTURE publish that frame and its pose on `acquired_frame` / `acquired_pose`, log it, and
+            wait two periods so the map and the clustering have taken it in, then PLAN again
+
+The episode ends (the update returns ReachedTermination) when the policy is done, when
+`max_poses` frames have been captured, or when no proposed viewpoint can be reached.
+
+The policy and the motion planner are held by the system, not the context: the policy keeps
+planner memory (cached nodes, visited cells) across steps, as the algorithm requires.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import enum
+import time
+from typing import Any
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import EventStatus, LeafSystem
+from pydrake.trajectories import PiecewisePolynomial
+
+from lrnbv_drake.motion import MotionPlanner
+from lrnbv_drake.planning.policy import Observation, ViewpointPolicy
+from lrnbv_drake.sensor import ToFFrame
+
+
+class Mode(enum.Enum):
+    PLAN = "plan"
+    MOVE = "move"
+    SETTLE = "settle"
+    WAIT_MAP = "wait_map"
+    DONE = "done"
+
+
+@dc.dataclass
+class Acquisition:
+    """One captured viewpoint."""
+
+    index: int
+    time: float
+    q: np.ndarray
+    X_WS: np.ndarray
+    frame: ToFFrame
+    info: dict[str, Any] = dc.field(default_factory=dict)
+
+
+@dc.dataclass
+class EpisodeLog:
+    """Everything an episode did, in order."""
+
+    acquisitions: list[Acquisition] = dc.field(default_factory=list)
+    # Viewpoints that could not be reached: (time, X_WS, failure, reason).
+    motion_failures: list[tuple[float, np.ndarray, str, str]] = dc.field(default_factory=list)
+    # Seconds spent choosing each viewpoint (policy) and planning its motion.
+    policy_seconds: list[float] = dc.field(default_factory=list)
+    motion_seconds: list[float] = dc.field(default_factory=list)
+    termination: str = ""
+
+
+@dc.dataclass
+class _State:
+    mode: Mode = Mode.PLAN
+    trajectory: PiecewisePolynomial | None = None
+    hold: np.ndarray | None = None
+    t_stop: float = 0.0
+    t_ready: float = 0.0
+    pending_info: dict[str, Any] = dc.field(default_factory=dict)
+    failed_in_a_row: int = 0
+    log: EpisodeLog = dc.field(default_factory=EpisodeLog)
+
+
+class NbvPlanner(LeafSystem):
+    """Drives the cell through an episode of a viewpoint policy.
+
+    Input ports: `position_measured` (6), `tof_frame` (ToFFrame), `X_WS` (RigidTransform),
+    `map` (OccupancyMap, optional), `object` (ExtractionResult, optional).
+    Output ports: `position_command` (6), `acquired_frame` (ToFFrame), `acquired_pose`
+    (RigidTransform), `log` (EpisodeLog).
+    """
+
+    def __init__(self, policy: ViewpointPolicy, motion: MotionPlanner, q_initial: np.ndarray,
+                 *, period: float, frame_period: float, settle_frames: int = 1,
+                 max_poses: int = 50, max_failed_proposals: int = 5):
+        super().__init__()
+        self._policy = policy
+        self._motion = motion
+        self._period = period
+        self._frame_period = frame_period
+        self._settle = settle_frames * frame_period
+        self._max_poses = max_poses
+        self._max_failed = max_failed_proposals
+        q_initial = np.asarray(q_initial, float)
+
+        self._q_port = self.DeclareVectorInputPort("position_measured", 6)
+        self._frame_port = self.DeclareAbstractInputPort(
+            "tof_frame", AbstractValue.Make(ToFFrame.empty()))
+        self._pose_port = self.DeclareAbstractInputPort(
+            "X_WS", AbstractValue.Make(RigidTransform()))
+        self._map_port = self.DeclareAbstractInputPort("map", AbstractValue.Make(None))
+        self._object_port = self.DeclareAbstractInputPort("object", AbstractValue.Make(None))
+
+        initial = _State(hold=q_initial,
+                         mode=Mode.SETTLE if policy.capture_initial else Mode.PLAN)
+        self._state_index = self.DeclareAbstractState(AbstractValue.Make(initial))
+        state_ticket = {self.abstract_state_ticket(self._state_index)}
+        self.DeclareVectorOutputPort("position_command", 6, self._CalcCommand,
+                                     prerequisites_of_calc={self.time_ticket(),
+                                                            *state_ticket})
+        self.DeclareAbstractOutputPort("acquired_frame",
+                                       lambda: AbstractValue.Make(ToFFrame.empty()),
+                                       self._CalcAcquiredFrame, prerequisites_of_calc=state_ticket)
+        self.DeclareAbstractOutputPort("acquired_pose",
+                                       lambda: AbstractValue.Make(RigidTransform()),
+                                       self._CalcAcquiredPose, prerequisites_of_calc=state_ticket)
+        self.DeclareAbstractOutputPort("log", lambda: AbstractValue.Make(EpisodeLog()),
+                                       self._CalcLog, prerequisites_of_calc=state_ticket)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._Update)
+
+    # Outputs -----------------------------------------------------------------------------
+
+    def _state(self, context) -> _State:
+        return context.get_abstract_state(self._state_index).get_value()
+
+    def _CalcCommand(self, context, output) -> None:
+        s = self._state(context)
+        if s.trajectory is not None:
+            t = min(context.get_time(), s.trajectory.end_time())
+            output.SetFromVector(s.trajectory.value(t).ravel())
+        else:
+            output.SetFromVector(s.hold)
+
+    def _CalcAcquiredFrame(self, context, output) -> None:
+        acquisitions = self._state(context).log.acquisitions
+        output.set_value(acquisitions[-1].frame if acquisitions else ToFFrame.empty())
+
+    def _CalcAcquiredPose(self, context, output) -> None:
+        acquisitions = self._state(context).log.acquisitions
+        output.set_value(RigidTransform(acquisitions[-1].X_WS) if acquisitions
+                         else RigidTransform())
+
+    def _CalcLog(self, context, output) -> None:
+        output.set_value(self._state(context).log)
+
+    # The state machine -------------------------------------------------------------------
+
+    def _Update(self, context, state) -> EventStatus:
+        s: _State = dc.replace(self._state(context))
+        t = context.get_time()
+        if s.mode is Mode.DONE:
+            return EventStatus.ReachedTermination(self, s.log.termination)
+        if s.mode is Mode.MOVE and t >= s.trajectory.end_time():
+            s.hold = s.trajectory.value(s.trajectory.end_time()).ravel()
+            s.trajectory = None
+            s.mode, s.t_stop = Mode.SETTLE, t
+        elif s.mode is Mode.SETTLE:
+            frame = self._frame_port.Eval(context)
+            if frame.sequence > 0 and frame.timestamp_us >= (s.t_stop + self._settle) * 1e6 - 1:
+                self._capture(context, s, frame)
+        elif s.mode is Mode.WAIT_MAP and t >= s.t_ready:
+            s.mode = Mode.PLAN
+        elif s.mode is Mode.PLAN:
+            self._plan(context, s)
+        state.get_mutable_abstract_state(self._state_index).set_value(s)
+        if s.mode is Mode.DONE:
+            return EventStatus.ReachedTermination(self, s.log.termination)
+        return EventStatus.Succeeded()
+
+    def _observation(self, context, s: _State) -> Observation:
+        return Observation(
+            time=context.get_time(),
+            q=np.asarray(self._q_port.Eval(context), float).copy(),
+            X_WS=self._pose_port.Eval(context).GetAsMatrix4(),
+            occupancy=self._map_port.Eval(context) if self._map_port.HasValue(context) else None,
+            extraction=(self._object_port.Eval(context)
+                        if self._object_port.HasValue(context) else None),
+            n_acquisitions=len(s.log.acquisitions),
+        )
+
+    def _capture(self, context, s: _State, frame: ToFFrame) -> None:
+        log = dc.replace(s.log, acquisitions=[*s.log.acquisitions, Acquisition(
+            index=len(s.log.acquisitions), time=context.get_time(),
+            q=np.asarray(self._q_port.Eval(context), float).copy(),
+            X_WS=self._pose_port.Eval(context).GetAsMatrix4(), frame=frame,
+            info=s.pending_info)])
+        s.log, s.pending_info = log, {}
+        # Two update periods: the map inserts the frame on the next one, the planner reads the
+        # updated map on the one after.
+        s.mode, s.t_ready = Mode.WAIT_MAP, context.get_time() + 1.5 * self._period
+        if len(log.acquisitions) >= self._max_poses:
+            self._finish(s, f"reached the cap of {self._max_poses} poses")
+
+    def _finish(self, s: _State, reason: str) -> None:
+        s.mode = Mode.DONE
+        s.log = dc.replace(s.log, termination=reason)
+
+    def _plan(self, context, s: _State) -> None:
+        observation = self._observation(context, s)
+        started = time.perf_counter()
+        proposal = self._policy.propose(observation)
+        policy_seconds = time.perf_counter() - started
+        if proposal.done:
+            s.log = dc.replace(s.log, policy_seconds=[*s.log.policy_seconds, policy_seconds])
+            self._finish(s, proposal.reason)
+            return
+        started = time.perf_counter()
+        failures = []
+        for i, X_WS in enumerate(proposal.candidates):
+            plan = self._motion.plan(observation.q, X_WS, start_time=context.get_time())
+            if plan.ok:
+                self._policy.accepted(i, observation)
+                s.trajectory, s.mode = plan.trajectory, Mode.MOVE
+                per_candidate = proposal.candidate_info[i] if proposal.candidate_info else {}
+                s.pending_info = {**proposal.info, **per_candidate, "candidate_rank": i}
+                break
+            failures.append((context.get_time(), np.asarray(X_WS), plan.failure.value,
+                             plan.reason))
+        s.log = dc.replace(
+            s.log, motion_failures=[*s.log.motion_failures, *failures],
+            policy_seconds=[*s.log.policy_seconds, policy_seconds],
+            motion_seconds=[*s.log.motion_seconds, time.perf_counter() - started])
+        if s.mode is Mode.MOVE:
+            s.failed_in_a_row = 0
+            return
+        s.failed_in_a_row += 1
+        if s.failed_in_a_row >= self._max_failed or not proposal.candidates:
+            last = failures[-1][3] if failures else "the policy proposed no viewpoint"
+            self._finish(s, f"no reachable viewpoint in {s.failed_in_a_row} proposals "
+                            f"(last: {last})")

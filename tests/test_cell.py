@@ -1,0 +1,45 @@
+"""make_cell: its ports, and the sensor in the cell seeing what is there."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from lrnbv_drake.cell import make_cell
+from lrnbv_drake.motion import MotionPlanner
+from lrnbv_drake.poses import look_at
+from lrnbv_drake.scenario import HOME_POSITION, Scenario
+from lrnbv_drake.sensor import STATUS_VALID
+
+
+def test_ports_have_the_stable_names():
+    dut = make_cell(Scenario())
+    inputs = {dut.get_input_port(i).get_name() for i in range(dut.num_input_ports())}
+    outputs = {dut.get_output_port(i).get_name() for i in range(dut.num_output_ports())}
+    assert inputs == {"ur5e.position"}
+    assert outputs == {"ur5e.position_measured", "tof.frame", "tof.pose", "query_object"}
+
+
+def test_hardware_is_not_there_yet():
+    with pytest.raises(NotImplementedError, match="hardware"):
+        make_cell(Scenario(), hardware=True)
+
+
+def test_sensor_looking_down_sees_the_box_top():
+    scenario = Scenario()
+    # The horizontal box (0.12 m tall) rests at (0.5, 0): from 0.40 m above the table, looking
+    # straight down, the centre zones see its top 0.28 m away.
+    target = look_at([0.5, 0.0, 0.40], [0.5, 0.0, 0.0])
+    q = MotionPlanner(scenario).ik(target, np.array(HOME_POSITION))[0]
+    dut = make_cell(scenario)
+    simulator = Simulator(dut)
+    context = simulator.get_mutable_context()
+    dut.GetInputPort("ur5e.position").FixValue(context, q)
+    simulator.AdvanceTo(0.1)
+    frame = dut.GetOutputPort("tof.frame").Eval(context)
+    assert frame.sequence >= 1
+    centre = frame.distance_mm[2:6, 2:6]
+    assert np.all(frame.status[2:6, 2:6] == STATUS_VALID)
+    sigma = scenario.sensor.sigma0_mm
+    assert np.all(np.abs(centre - 280) <= 4 * sigma + 1)
+    np.testing.assert_allclose(dut.GetOutputPort("tof.pose").Eval(context).GetAsMatrix4(),
+                               target, atol=1e-9)

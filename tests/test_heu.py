@@ -1,0 +1,45 @@
+"""HEU baseline: 13 evenly spaced poses on an ellipse, each looking at the object."""
+
+import numpy as np
+import pytest
+
+from lrnbv_drake.planning.heu import HeuParams, HeuPolicy, heu_poses
+from lrnbv_drake.planning.policy import Observation
+from lrnbv_drake.poses import look_at
+
+
+def test_look_at_points_the_optical_axis_at_the_target():
+    X = look_at([1.0, 2.0, 3.0], [1.0, 2.0, 0.0])
+    np.testing.assert_allclose(X[:3, 2], [0, 0, -1], atol=1e-12)
+    np.testing.assert_allclose(X[:3, :3].T @ X[:3, :3], np.eye(3), atol=1e-12)
+    assert np.linalg.det(X[:3, :3]) == pytest.approx(1.0)
+    X = look_at([0.0, 0.0, 1.0], [1.0, 0.0, 1.0])
+    np.testing.assert_allclose(X[:3, 1], [0, 0, -1], atol=1e-12)  # image y points down
+
+
+def test_poses_lie_on_the_ellipse_evenly_spaced_and_look_at_the_target():
+    target = np.array([0.5, 0.1, 0.06])
+    params = HeuParams(semi_axis_x=0.2, semi_axis_y=0.3, height=0.25)
+    poses = heu_poses(target, params)
+    assert len(poses) == 13
+    p = np.array([X[:3, 3] for X in poses]) - target
+    np.testing.assert_allclose(p[:, 2], 0.25)
+    np.testing.assert_allclose((p[:, 0] / 0.2) ** 2 + (p[:, 1] / 0.3) ** 2, 1.0)
+    angles = np.unwrap(np.arctan2(p[:, 1] / 0.3, p[:, 0] / 0.2))
+    np.testing.assert_allclose(np.diff(angles), 2 * np.pi / 13)
+    for X in poses:
+        to_target = (target - X[:3, 3]) / np.linalg.norm(target - X[:3, 3])
+        np.testing.assert_allclose(X[:3, 2], to_target, atol=1e-12)
+
+
+def test_policy_skips_what_the_loop_could_not_reach_and_ends():
+    dut = HeuPolicy(np.zeros(3))
+    obs = Observation(time=0.0, q=np.zeros(6), X_WS=np.eye(4))
+    first = dut.propose(obs)
+    assert len(first.candidates) == 13 and not first.done
+    dut.accepted(2, obs)  # poses 0 and 1 were unreachable
+    second = dut.propose(obs)
+    assert len(second.candidates) == 10
+    np.testing.assert_array_equal(second.candidates[0], dut.poses[3])
+    dut.accepted(9, obs)
+    assert dut.propose(obs).done

@@ -1,0 +1,105 @@
+"""NbvPlanner alone: fixed inputs, a scripted policy and a straight-line motion stand-in."""
+
+import numpy as np
+from pydrake.math import RigidTransform
+from pydrake.systems.analysis import Simulator
+
+from lrnbv_drake.motion import MotionFailure, MotionPlan, trapezoidal_trajectory
+from lrnbv_drake.planning.policy import Proposal, ViewpointPolicy
+from lrnbv_drake.sensor import ToFFrame
+from lrnbv_drake.systems.nbv_planner import NbvPlanner
+
+PERIOD = 0.05
+
+
+class StraightLine:
+    """Motion stand-in: the 'joint target' is the pose's translation padded to 6; a target with
+    x < 0 is unreachable."""
+
+    def plan(self, q_current, X_WS, start_time=0.0):
+        q = np.r_[X_WS[:3, 3], 0.0, 0.0, 0.0]
+        if q[0] < 0:
+            return MotionPlan(MotionFailure.UNREACHABLE, "x < 0")
+        traj = trapezoidal_trajectory(np.array([q_current, q]), np.ones(6), np.ones(6),
+                                      start_time)
+        return MotionPlan(None, "ok", q_target=q, trajectory=traj)
+
+
+class Scripted(ViewpointPolicy):
+    name = "scripted"
+
+    def __init__(self, targets):
+        self.targets = targets
+        self.accepted_indices = []
+
+    def propose(self, observation):
+        if not self.targets:
+            return Proposal(done=True, reason="script finished")
+        return Proposal(candidates=self.targets)
+
+    def accepted(self, index, observation):
+        self.accepted_indices.append(index)
+        self.targets = self.targets[index + 1:]
+
+
+def _pose(x, y, z):
+    X = np.eye(4)
+    X[:3, 3] = (x, y, z)
+    return X
+
+
+def _make(targets, **kwargs):
+    policy = Scripted(targets)
+    dut = NbvPlanner(policy, StraightLine(), np.zeros(6), period=PERIOD, frame_period=0.1,
+                     settle_frames=1, **kwargs)
+    context = dut.CreateDefaultContext()
+    dut.GetInputPort("position_measured").FixValue(context, np.zeros(6))
+    dut.GetInputPort("X_WS").FixValue(context, RigidTransform([0.1, 0.2, 0.3]))
+    frame = ToFFrame(np.full((8, 8), 400), np.full((8, 8), 5), np.full((8, 8), 6),
+                     sequence=1, timestamp_us=0)
+    dut.GetInputPort("tof_frame").FixValue(context, frame)
+    return dut, context, policy
+
+
+def test_moves_along_the_plan_and_skips_unreachable_candidates():
+    dut, context, policy = _make([_pose(-1, 0, 0), _pose(0.5, 0, 0)])
+    simulator = Simulator(dut, context)
+    simulator.AdvanceTo(PERIOD / 2)  # the first update plans
+    assert policy.accepted_indices == [1]
+    log = dut.GetOutputPort("log").Eval(context)
+    assert [f[2] for f in log.motion_failures] == ["unreachable"]
+    # A 0.5 rad move at 1 rad/s, 1 rad/s^2 is a triangle of 2*sqrt(0.5) s; halfway it is at
+    # 0.25 rad.
+    simulator.AdvanceTo(np.sqrt(0.5))
+    np.testing.assert_allclose(dut.GetOutputPort("position_command").Eval(context)[0], 0.25,
+                               atol=1e-9)
+
+
+def test_captures_only_a_frame_taken_after_the_arm_settled():
+    dut, context, _policy = _make([_pose(0.5, 0, 0)])
+    simulator = Simulator(dut, context)
+    simulator.AdvanceTo(3.0)  # motion ends at ~1.41 s; the fixed frame is from t = 0
+    assert dut.GetOutputPort("log").Eval(context).acquisitions == []
+    late = ToFFrame(np.full((8, 8), 321), np.full((8, 8), 5), np.full((8, 8), 6), sequence=9,
+                    timestamp_us=2_900_000)
+    dut.GetInputPort("tof_frame").FixValue(context, late)
+    status = simulator.AdvanceTo(10.0)
+    log = dut.GetOutputPort("log").Eval(context)
+    assert len(log.acquisitions) == 1
+    acquired = dut.GetOutputPort("acquired_frame").Eval(context)
+    assert acquired.sequence == 9 and acquired.distance_mm[0, 0] == 321
+    np.testing.assert_allclose(log.acquisitions[0].q, 0.0)  # the fixed measured position
+    np.testing.assert_allclose(
+        dut.GetOutputPort("acquired_pose").Eval(context).translation(), [0.1, 0.2, 0.3])
+    # The policy is then done, which terminates the simulation.
+    assert status.reason() == status.ReturnReason.kReachedTerminationCondition
+    assert log.termination == "script finished"
+
+
+def test_gives_up_when_nothing_is_reachable():
+    dut, context, _ = _make([_pose(-1, 0, 0)], max_failed_proposals=3)
+    status = Simulator(dut, context).AdvanceTo(10.0)
+    log = dut.GetOutputPort("log").Eval(context)
+    assert status.reason() == status.ReturnReason.kReachedTerminationCondition
+    assert log.termination.startswith("no reachable viewpoint in 3 proposals")
+    assert len(log.motion_failures) == 3
