@@ -154,6 +154,8 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
     diagram, cell, planner_system = build_episode(scenario, policy, meshcat)
     simulator = Simulator(diagram)
     if meshcat is not None:
+        # Look at the object area from the front-left, a little above the table.
+        meshcat.SetCameraPose([1.5, -1.1, 1.0], [0.4, 0.0, 0.15])
         visualizer = cell.visualizer
         visualizer.StartRecording(set_transforms_while_recording=True)
     simulator.Initialize()

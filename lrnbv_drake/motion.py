@@ -142,6 +142,12 @@ class MotionPlanner:
         cost = np.max(np.abs(Q - q_current) / self.max_velocity, axis=1)
         return Q[np.argsort(cost, kind="stable")]
 
+    def reachable(self, X_WS: np.ndarray, q_current: np.ndarray | None = None) -> bool:
+        """Whether some IK solution for sensor pose X_WS is collision free (the path is not
+        checked: that is `plan`'s job once a view is chosen)."""
+        q_ref = self.home if q_current is None else np.asarray(q_current, float)
+        return any(self.collision_free(q) for q in self.ik(X_WS, q_ref))
+
     def plan(self, q_current: np.ndarray, X_WS: np.ndarray, start_time: float = 0.0
              ) -> MotionPlan:
         """Plans a motion from joints `q_current` to sensor pose `X_WS` (4x4)."""

@@ -1,0 +1,264 @@
+"""LR-NBV (Algorithm 1) as a viewpoint policy, and the NBV baseline (the same without Gd, Gv).
+
+One call of `propose` is one iteration of Algorithm 1's loop, split where the acquisition loop
+does the robot's part (capture, map update, clustering: lines 16-18):
+
+- lines 19-21 (for the previous iteration): re-evaluate the cached nodes against the new map,
+  keep the best m_i, take the best and worst cached utilities;
+- lines 7-9: grow a new tree from the current pose, cache off-branch nodes above tau, take the
+  best node of the best branch;
+- lines 10-14: if it is worse than the best cached node, grow a tree from samples around the
+  most promising cached nodes and take its best node instead;
+- lines 15/24: stop if the best node is not better than the worst cached one; else propose it.
+
+docs/algorithm.md maps each line and equation to the code and gives every reading chosen where
+the paper is ambiguous.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+import time
+
+import numpy as np
+
+from lrnbv_drake.boxes import AlignedBox
+from lrnbv_drake.planning.policy import Observation, Proposal, ViewpointPolicy
+from lrnbv_drake.planning.rrt import Reachable, TreeParams, ViewTree, expand_tree
+from lrnbv_drake.planning.utility import (
+    GainParams,
+    Gains,
+    PlanningSnapshot,
+    UtilityFunction,
+    UtilityWeights,
+    VisitedGrid,
+    evaluate_gains,
+    make_snapshot,
+    sensor_rays,
+)
+from lrnbv_drake.sensor import ZoneGeometry
+
+
+@dc.dataclass
+class PlannerParams:
+    """LR-NBV's parameters (Table 1 of the paper where it gives them)."""
+
+    # Hard cap on iterations (acquisitions after the first).
+    num_iterations: int = 300
+    # Samples per tree, n.
+    samples_per_iteration: int = 50
+    # Cached nodes kept at the first iteration, m_0; m_i falls linearly to 0 at num_iterations.
+    num_cached_nodes: int = 50
+    # Cell size of the visited grid, metres.
+    visited_cell_size: float = 0.18
+    weights: UtilityWeights = dc.field(default_factory=UtilityWeights)
+    gains: GainParams = dc.field(default_factory=GainParams)
+    tree: TreeParams = dc.field(default_factory=TreeParams)
+    # tau: off-branch nodes with a utility above this are cached.
+    cache_threshold: float = 0.0
+    # Spread of the samples drawn around a cached node by ExpandRRTCached, metres.
+    cached_sample_spread: float = 0.05
+    # Where to look for the object while none has been found: ((x0, y0, z0), (x1, y1, z1)).
+    search_region: tuple[tuple[float, float, float], tuple[float, float, float]] = (
+        (0.25, -0.3, 0.0), (0.75, 0.3, 0.3))
+
+
+@dc.dataclass
+class _Cached:
+    """A cached node: its pose and raw gains (scored again whenever compared)."""
+
+    X_WS: np.ndarray
+    gains: Gains
+
+
+def cache_capacity(m0: int, iteration: int, num_iterations: int) -> int:
+    """m_i: the number of cached nodes kept after iteration i, falling linearly from m0."""
+    return max(0, math.ceil(m0 * (1.0 - iteration / num_iterations)))
+
+
+class LrNbvPolicy(ViewpointPolicy):
+    """The LR-NBV planner (or, with `variant="nbv"`, the standard NBV baseline).
+
+    Args:
+        params: planner parameters.
+        geometry: the sensor's zones, from which the gain rays are cast.
+        workspace: box the sensor positions must lie in.
+        reachable: whether the robot can put the sensor at a pose (4x4).
+        table_height: the ROI never extends below the table top.
+        seed: seed of the tree sampling.
+        variant: "lrnbv" or "nbv" (Gd and Gv weights set to zero).
+    """
+
+    capture_initial = True
+
+    def __init__(self, params: PlannerParams, geometry: ZoneGeometry, workspace: AlignedBox,
+                 reachable: Reachable, table_height: float = 0.0, seed: int = 0,
+                 variant: str = "lrnbv"):
+        if variant not in ("lrnbv", "nbv"):
+            raise ValueError(f"unknown variant '{variant}': expected 'lrnbv' or 'nbv'")
+        weights = params.weights
+        if variant == "nbv":
+            weights = dc.replace(weights, density=0.0, visited=0.0)
+        self.name = variant
+        self.params = params
+        self.utility = UtilityFunction(weights, params.gains.normalize)
+        self.rays = sensor_rays(geometry, params.gains.rays_per_zone)
+        self.workspace = workspace
+        self.reachable = reachable
+        self.table_height = table_height
+        self.visited = VisitedGrid(params.visited_cell_size)
+        self.rng = np.random.default_rng(seed)
+        self.iteration = 0
+        self.cache: list[_Cached] = []
+        self._marked = 0
+        # The last iteration's tree and ROI, for visualisation.
+        self.last_tree: ViewTree | None = None
+        self.last_roi: AlignedBox | None = None
+
+    # -- helpers --------------------------------------------------------------------------
+
+    def _scorer(self, snapshot: PlanningSnapshot):
+        def score(poses: np.ndarray) -> tuple[Gains, np.ndarray]:
+            gains = evaluate_gains(poses, snapshot, self.rays, self.visited, self.params.gains)
+            self.utility.observe(gains)
+            return gains, self.utility(gains)
+        return score
+
+    def _roi(self, extraction) -> tuple[AlignedBox, np.ndarray, np.ndarray]:
+        """ROI, object points and x_object from the extraction, or the search region."""
+        if extraction is not None and extraction.found:
+            roi, points, center = extraction.roi, extraction.object_points, extraction.center
+        else:
+            roi = AlignedBox(*(np.asarray(v, float) for v in self.params.search_region))
+            points, center = np.zeros((0, 3)), roi.center
+        lower = roi.lower.copy()
+        lower[2] = max(lower[2], self.table_height)  # nothing to explore under the table top
+        return AlignedBox(lower, roi.upper), points, center
+
+    def _random_position(self) -> np.ndarray:
+        return self.rng.uniform(self.workspace.lower, self.workspace.upper)
+
+    def _cached_sampler(self, utilities: np.ndarray):
+        """Positions around the cached nodes, the most promising first (ExpandRRTCached)."""
+        order = np.argsort(-utilities, kind="stable")
+        spread = self.params.cached_sample_spread
+        draws = iter(range(10**9))
+
+        def sample() -> np.ndarray:
+            node = self.cache[order[next(draws) % len(order)]]
+            return node.X_WS[:3, 3] + self.rng.normal(0.0, spread, 3)
+        return sample
+
+    def _grow(self, root: np.ndarray, sampler, snapshot: PlanningSnapshot, roi: AlignedBox,
+              steer: bool = True) -> tuple[ViewTree, np.ndarray, list[int]]:
+        tree = expand_tree(root, self.params.samples_per_iteration, sampler, self.workspace,
+                           roi, self._scorer(snapshot), self.reachable, self.params.tree, steer)
+        utilities = self.utility(tree.candidate_gains())
+        return tree, utilities, tree.best_branch(utilities)
+
+    def _cache_off_branch(self, tree: ViewTree, utilities: np.ndarray, branch: list[int]) -> None:
+        on_branch = set(branch)
+        for i in range(1, len(tree.poses)):
+            if i not in on_branch and utilities[i - 1] > self.params.cache_threshold:
+                self.cache.append(_Cached(tree.poses[i], tree.gains[i]))
+
+    def _cached_utilities(self) -> np.ndarray:
+        return self.utility(Gains.concatenate([c.gains for c in self.cache]))
+
+    def _update_cache(self, snapshot: PlanningSnapshot) -> float:
+        """Lines 19-21: re-evaluate, reorder and trim the cache; returns the seconds it took."""
+        started = time.perf_counter()
+        if self.cache:
+            poses = np.array([c.X_WS for c in self.cache])
+            gains = evaluate_gains(poses, snapshot, self.rays, self.visited, self.params.gains)
+            self.utility.observe(gains)
+            self.cache = [_Cached(X, gains.take(i)) for i, X in enumerate(poses)]
+            keep = cache_capacity(self.params.num_cached_nodes, self.iteration,
+                                  self.params.num_iterations)
+            order = np.argsort(-self._cached_utilities(), kind="stable")[:keep]
+            self.cache = [self.cache[i] for i in order]
+        return time.perf_counter() - started
+
+    # -- the policy -----------------------------------------------------------------------
+
+    def propose(self, observation: Observation) -> Proposal:
+        # Acquisitions since the last call make their positions visited (Gv).
+        if observation.n_acquisitions > self._marked:
+            self.visited.visit(observation.X_WS[:3, 3])
+            self._marked = observation.n_acquisitions
+        if self.iteration >= self.params.num_iterations:
+            return Proposal(done=True, reason=f"reached {self.params.num_iterations} iterations")
+
+        roi, object_points, center = self._roi(observation.extraction)
+        snapshot = make_snapshot(observation.occupancy, roi, object_points, center,
+                                 self.params.gains.density_radius)
+        reevaluation_s = self._update_cache(snapshot)
+        cached_before = list(self.cache)
+
+        def cached_utilities() -> np.ndarray:
+            # Scored now: the running maxima may have grown since the cache was updated.
+            return self.utility(Gains.concatenate([c.gains for c in cached_before]))
+
+        def best_node(tree: ViewTree, branch: list[int]) -> tuple[int | None, float]:
+            utilities = self.utility(tree.candidate_gains())
+            if not branch:
+                return None, -np.inf
+            best = max(branch, key=lambda i: utilities[i - 1])
+            return best, float(utilities[best - 1])
+
+        started = time.perf_counter()
+        tree, utilities, branch = self._grow(observation.X_WS, self._random_position, snapshot,
+                                             roi)
+        self._cache_off_branch(tree, utilities, branch)
+        best, u_best = best_node(tree, branch)
+        used_cached_tree = False
+        if cached_before and u_best < cached_utilities().max():
+            cached_tree, cached_u, cached_branch = self._grow(
+                observation.X_WS, self._cached_sampler(cached_utilities()), snapshot, roi,
+                steer=False)
+            self._cache_off_branch(cached_tree, cached_u, cached_branch)
+            if cached_branch:
+                tree, branch, used_cached_tree = cached_tree, cached_branch, True
+        best, u_best = best_node(tree, branch)
+        utilities = self.utility(tree.candidate_gains())
+        expansion_s = time.perf_counter() - started
+        self.last_tree, self.last_roi = tree, roi
+        final_cached = cached_utilities() if cached_before else None
+        best_cached = float(final_cached.max()) if cached_before else None
+        worst_cached = float(final_cached.min()) if cached_before else None
+
+        info = {
+            "iteration": self.iteration,
+            "utility": float(u_best),
+            "best_cached_utility": best_cached,
+            "worst_cached_utility": worst_cached,
+            "n_tree_nodes": tree.size,
+            "n_cached": len(self.cache),
+            "used_cached_tree": used_cached_tree,
+            "object_found": bool(observation.extraction is not None
+                                 and observation.extraction.found),
+            "roi": [roi.lower.tolist(), roi.upper.tolist()],
+            "tree_expansion_s": expansion_s,
+            "cache_reevaluation_s": reevaluation_s,
+        }
+        if best is None:
+            return Proposal(done=True, reason="no reachable view found around the ROI",
+                            info=info)
+        if cached_before and u_best <= worst_cached:
+            return Proposal(done=True, info=info, reason=(
+                f"best utility {u_best:.4g} is not above the worst cached node's "
+                f"{worst_cached:.4g} (Algorithm 1, line 24)"))
+        g = tree.gains[best]
+        info["gains"] = {"exploration": float(g.exploration[0]), "density": float(g.density[0]),
+                         "quality": float(g.quality[0]), "visited": float(g.visited[0])}
+        # The best node first; then the rest of the tree by utility, in case the motion to the
+        # best one fails.
+        order = [best] + [int(i) + 1 for i in np.argsort(-utilities, kind="stable")
+                          if int(i) + 1 != best]
+        return Proposal(candidates=[tree.poses[i] for i in order], info=info,
+                        candidate_info=[{"node_utility": float(utilities[i - 1])}
+                                        for i in order])
+
+    def accepted(self, index: int, observation: Observation) -> None:
+        self.iteration += 1
