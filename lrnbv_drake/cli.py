@@ -10,6 +10,7 @@ from collections.abc import Sequence
 
 from lrnbv_drake import objects
 from lrnbv_drake.episode import PLANNERS, make_meshcat, run_episode
+from lrnbv_drake.hardware.sensor_cli import add_sensor_commands, run_sensor_command
 from lrnbv_drake.scenario import Scenario, load_scenario
 
 
@@ -28,7 +29,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run one reconstruction episode in the simulated cell")
-    run.add_argument("--planner", choices=PLANNERS, default="heu")
+    run.add_argument("--planner", choices=PLANNERS, default="lrnbv")
     run.add_argument("--object", help="a built-in object (see `lrnbv objects`) or a mesh file "
                                       "(.obj, .stl, .ply)")
     run.add_argument("--object-scale", type=float, help="mesh units to metres (default 1)")
@@ -41,6 +42,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="serve a live Meshcat view (a replay.html is written either way)")
 
     sub.add_parser("objects", help="list the built-in objects")
+    add_sensor_commands(sub)
     return parser
 
 
@@ -61,6 +63,8 @@ def _scenario(args: argparse.Namespace) -> Scenario:
 def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     args = _parser().parse_args(argv)
+    if args.command == "sensor":
+        return run_sensor_command(args)
     if args.command == "objects":
         for name in objects.PAPER_OBJECTS:
             print(f"{name:16s} {objects.BUILTIN_OBJECTS[name].description}")

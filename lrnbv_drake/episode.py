@@ -24,17 +24,26 @@ from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from lrnbv_drake.cell import make_cell, place_object, zone_geometry
+from lrnbv_drake import metrics
+from lrnbv_drake.boxes import AlignedBox
+from lrnbv_drake.cell import make_cell, zone_geometry
 from lrnbv_drake.motion import MotionPlanner
+from lrnbv_drake.objects import PlacedObject, sample_surface
+from lrnbv_drake.perception import ExtractionParams
 from lrnbv_drake.planning.heu import HeuPolicy
+from lrnbv_drake.planning.lrnbv import LrNbvPolicy
 from lrnbv_drake.planning.policy import ViewpointPolicy
-from lrnbv_drake.scenario import Scenario
+from lrnbv_drake.scenario import Scenario, ScenarioError
 from lrnbv_drake.systems.nbv_planner import EpisodeLog, NbvPlanner
+from lrnbv_drake.systems.object_clustering import ObjectClustering
+from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
 from lrnbv_drake.systems.tof_visualizer import ToFVisualizer
 
 log = logging.getLogger(__name__)
 
-PLANNERS = ("heu",)
+PLANNERS = ("lrnbv", "nbv", "heu")
+#: Spacing of the surface samples the coverage metric counts, metres (threshold / 2).
+COVERAGE_SPACING = 0.005
 #: Simulated seconds after which an episode is stopped whatever the policy says.
 MAX_EPISODE_SECONDS = 1200.0
 
@@ -49,11 +58,44 @@ class EpisodeResult:
     wall_seconds: float
 
 
-def make_policy(planner: str, scenario: Scenario, object_center: np.ndarray) -> ViewpointPolicy:
+def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
+                placed: PlacedObject) -> ViewpointPolicy:
     """The viewpoint policy called `planner` for this scenario."""
     if planner == "heu":
-        return HeuPolicy(object_center)
+        # The object's true centre is given to the HEU baseline only, as in the paper.
+        return HeuPolicy(placed.mesh.bounds.mean(axis=0))
+    if planner in ("lrnbv", "nbv"):
+        return LrNbvPolicy(
+            scenario.planner, zone_geometry(scenario),
+            workspace=AlignedBox(*(np.asarray(v, float) for v in motion.workspace)),
+            first_reachable=motion.first_reachable, table_height=scenario.cell.table_height,
+            seed=scenario.seed, variant=planner)
     raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
+
+
+def extraction_params(scenario: Scenario) -> ExtractionParams:
+    """The object extraction's parameters from the scenario."""
+    e, m = scenario.extraction, scenario.mapping
+    return ExtractionParams(
+        table_height=scenario.cell.table_height, table_tolerance=e.table_tolerance,
+        dbscan_eps=e.dbscan_eps, dbscan_min_samples=e.dbscan_min_samples,
+        min_cluster_points=e.min_cluster_points,
+        workspace=AlignedBox(np.asarray(m.lower, float), np.asarray(m.upper, float)),
+        workspace_center=np.asarray(e.center, float),
+        max_center_distance=e.max_center_distance, roi_margin=e.roi_margin,
+        cell_size=m.resolution, enclose_cells=e.enclose_cells, seed=scenario.seed)
+
+
+def make_map_system(scenario: Scenario, period: float) -> OccupancyMapSystem:
+    """The occupancy map system from the scenario."""
+    m = scenario.mapping
+    if m.insertion not in ("ray", "cone"):
+        raise ScenarioError(f"field 'mapping.insertion': expected 'ray' or 'cone', got "
+                            f"{m.insertion!r}")
+    return OccupancyMapSystem(
+        bounds=(m.lower, m.upper), resolution=m.resolution, mode=m.insertion,
+        geometry=zone_geometry(scenario), max_range=m.max_range if m.max_range > 0 else None,
+        period=period, cone_k=m.cone_subrays, free_no_target=m.free_no_target)
 
 
 def make_meshcat(live: bool) -> Meshcat | None:
@@ -66,35 +108,74 @@ def make_meshcat(live: bool) -> Meshcat | None:
     return Meshcat(MeshcatParams(host="localhost" if not live else "*"))
 
 
-def build_episode(scenario: Scenario, policy: ViewpointPolicy, meshcat: Meshcat | None = None):
-    """The closed-loop diagram of an episode; returns (diagram, cell, planner)."""
+@dc.dataclass
+class EpisodeDiagram:
+    """The closed loop of an episode and the parts a runner reads."""
+
+    diagram: Any
+    cell: Any
+    planner: NbvPlanner
+    map_system: OccupancyMapSystem
+    policy: ViewpointPolicy
+
+
+def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = None
+                  ) -> EpisodeDiagram:
+    """The closed-loop diagram of an episode: cell, map, clustering and the planner."""
     builder = DiagramBuilder()
     cell = builder.AddNamedSystem("cell", make_cell(scenario, meshcat))
     motion = MotionPlanner(scenario)
+    policy = make_policy(planner, scenario, motion, cell.models.placed_object)
     period = scenario.sensor.period / 2
-    planner = builder.AddNamedSystem("planner", NbvPlanner(
+    loop = builder.AddNamedSystem("planner", NbvPlanner(
         policy, motion, scenario.robot.initial_position, period=period,
-        frame_period=scenario.sensor.period, settle_frames=scenario.sensor.settle_frames))
+        frame_period=scenario.sensor.period, settle_frames=scenario.sensor.settle_frames,
+        max_poses=scenario.max_poses))
+    map_system = builder.AddNamedSystem("map", make_map_system(scenario, period))
+    clustering = builder.AddNamedSystem("clustering",
+                                        ObjectClustering(extraction_params(scenario)))
+    builder.Connect(loop.GetOutputPort("acquired_frame"), map_system.GetInputPort("tof_frame"))
+    builder.Connect(loop.GetOutputPort("acquired_pose"), map_system.GetInputPort("X_WS"))
+    builder.Connect(map_system.GetOutputPort("map"), loop.GetInputPort("map"))
+    builder.Connect(map_system.GetOutputPort("occupied_points"),
+                    clustering.GetInputPort("occupied_points"))
+    builder.Connect(clustering.GetOutputPort("object"), loop.GetInputPort("object"))
     builder.Connect(cell.GetOutputPort("ur5e.position_measured"),
-                    planner.GetInputPort("position_measured"))
-    builder.Connect(cell.GetOutputPort("tof.frame"), planner.GetInputPort("tof_frame"))
-    builder.Connect(cell.GetOutputPort("tof.pose"), planner.GetInputPort("X_WS"))
-    builder.Connect(planner.GetOutputPort("position_command"), cell.GetInputPort("ur5e.position"))
+                    loop.GetInputPort("position_measured"))
+    builder.Connect(cell.GetOutputPort("tof.frame"), loop.GetInputPort("tof_frame"))
+    builder.Connect(cell.GetOutputPort("tof.pose"), loop.GetInputPort("X_WS"))
+    builder.Connect(loop.GetOutputPort("position_command"), cell.GetInputPort("ur5e.position"))
     if meshcat is not None:
         vis = builder.AddNamedSystem("tof_visualizer", ToFVisualizer(
             meshcat, zone_geometry(scenario), publish_period=period,
             show_rays=scenario.visualization.show_rays,
             show_points=scenario.visualization.show_points))
-        builder.Connect(planner.GetOutputPort("acquired_frame"), vis.GetInputPort("acquired_frame"))
-        builder.Connect(planner.GetOutputPort("acquired_pose"), vis.GetInputPort("acquired_pose"))
+        builder.Connect(loop.GetOutputPort("acquired_frame"), vis.GetInputPort("acquired_frame"))
+        builder.Connect(loop.GetOutputPort("acquired_pose"), vis.GetInputPort("acquired_pose"))
     diagram = builder.Build()
     diagram.set_name("episode")
-    return diagram, cell, planner
+    return EpisodeDiagram(diagram, cell, loop, map_system, policy)
 
 
-def _report(planner_name: str, scenario: Scenario, episode_log: EpisodeLog, cell,
+def episode_metrics(scenario: Scenario, placed: PlacedObject,
+                    episode_log: EpisodeLog) -> metrics.EpisodeMetrics:
+    """Box, coverage and pose metrics of an episode against the true object."""
+    final = episode_log.extractions[-1] if episode_log.extractions else None
+    estimated = final.oriented_box if final is not None and final.found else None
+    table = scenario.cell.table_height
+    # The same samples for every planner and trial (seed 0): differences are the planners'.
+    samples = sample_surface(placed.mesh, COVERAGE_SPACING, table_height=table, seed=0)
+    cells = [e.object_points if e is not None and e.found else np.zeros((0, 3))
+             for e in episode_log.extractions]
+    return metrics.episode_metrics(estimated, metrics.true_box(placed.mesh.vertices, table),
+                                   samples, cells, scenario.mapping.resolution)
+
+
+def _report(planner_name: str, scenario: Scenario, episode_log: EpisodeLog, parts: EpisodeDiagram,
             wall_seconds: float, sim_seconds: float) -> dict[str, Any]:
-    placed = cell.models.placed_object
+    placed = parts.cell.models.placed_object
+    final = episode_log.extractions[-1] if episode_log.extractions else None
+    found = final is not None and final.found
     return {
         "planner": planner_name,
         "object": scenario.object.name,
@@ -103,6 +184,11 @@ def _report(planner_name: str, scenario: Scenario, episode_log: EpisodeLog, cell
         "seed": scenario.seed,
         "termination": episode_log.termination,
         "n_poses": len(episode_log.acquisitions),
+        "metrics": episode_metrics(scenario, placed, episode_log).to_dict(),
+        "estimated_box": ({"center": final.oriented_box.center.tolist(),
+                           "dims": final.oriented_box.dims.tolist(),
+                           "yaw": float(final.oriented_box.yaw)} if found else None),
+        "extraction": final.reason if final is not None else "no extraction",
         "poses": [{
             "index": a.index,
             "time": a.time,
@@ -113,13 +199,21 @@ def _report(planner_name: str, scenario: Scenario, episode_log: EpisodeLog, cell
         } for a in episode_log.acquisitions],
         "motion_failures": [{"time": t, "position": X[:3, 3].tolist(), "failure": f,
                              "reason": r} for t, X, f, r in episode_log.motion_failures],
-        "true_object_vertices_bounds": [placed.mesh.bounds[0].tolist(),
-                                        placed.mesh.bounds[1].tolist()],
         "timing": {
             "wall_seconds": wall_seconds,
             "simulated_seconds": sim_seconds,
-            "policy_seconds": episode_log.policy_seconds,
-            "motion_planning_seconds": episode_log.motion_seconds,
+            "planning_steps": [{
+                "policy_s": p,
+                "motion_planning_s": m,
+            } for p, m in zip(episode_log.policy_seconds, episode_log.motion_seconds,
+                              strict=False)],
+            "tree_expansion_s": [a.info["tree_expansion_s"] for a in episode_log.acquisitions
+                                 if "tree_expansion_s" in a.info],
+            "cache_reevaluation_s": [a.info["cache_reevaluation_s"]
+                                     for a in episode_log.acquisitions
+                                     if "cache_reevaluation_s" in a.info],
+            "map_update_s": list(parts.map_system.insert_seconds),
+            "clustering_s": episode_log.clustering_seconds,
         },
         "scenario": yaml_dump_typed(scenario),
     }
@@ -148,28 +242,25 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    # The object's true centre is given to the HEU baseline only, as in the paper.
-    center = place_object(scenario).mesh.bounds.mean(axis=0)
-    policy = make_policy(planner, scenario, center)
-    diagram, cell, planner_system = build_episode(scenario, policy, meshcat)
-    simulator = Simulator(diagram)
-    if meshcat is not None:
+    parts = build_episode(scenario, planner, meshcat)
+    simulator = Simulator(parts.diagram)
+    visualizer = parts.cell.visualizer
+    if visualizer is not None:
         # Look at the object area from the front-left, a little above the table.
         meshcat.SetCameraPose([1.5, -1.1, 1.0], [0.4, 0.0, 0.15])
-        visualizer = cell.visualizer
         visualizer.StartRecording(set_transforms_while_recording=True)
     simulator.Initialize()
     simulator.AdvanceTo(MAX_EPISODE_SECONDS)
     context = simulator.get_context()
-    episode_log: EpisodeLog = planner_system.GetOutputPort("log").Eval(
-        planner_system.GetMyContextFromRoot(context))
+    episode_log: EpisodeLog = parts.planner.GetOutputPort("log").Eval(
+        parts.planner.GetMyContextFromRoot(context))
     if not episode_log.termination:
         episode_log.termination = f"stopped at the {MAX_EPISODE_SECONDS:.0f} s time limit"
     save_frames(out_dir / "frames.npz", episode_log)
     wall = time.perf_counter() - started
-    report = _report(planner, scenario, episode_log, cell, wall, context.get_time())
+    report = _report(planner, scenario, episode_log, parts, wall, context.get_time())
     (out_dir / "report.json").write_text(json.dumps(report, indent=2))
-    if meshcat is not None:
+    if visualizer is not None:
         visualizer.StopRecording()
         visualizer.PublishRecording()
         (out_dir / "replay.html").write_text(meshcat.StaticHtml())

@@ -131,22 +131,37 @@ class MotionPlanner:
         """Whether configuration q keeps the robot clear of the cell and of itself."""
         return bool(self._checker.CheckConfigCollisionFree(np.asarray(q, float)))
 
+    def _ik_batch(self, X_WS: np.ndarray, q_current: np.ndarray) -> list[np.ndarray]:
+        """For each sensor pose (N, 4, 4), its IK solutions as in `ik`."""
+        X_base_tool0 = self._X_base_W @ np.asarray(X_WS, float).reshape(-1, 4, 4) @ \
+            self._X_S_tool0
+        Q, ok = kinematics.inverse_kinematics(X_base_tool0)
+        Q = kinematics.nearest_equivalents(Q, q_current)
+        cost = np.where(ok, np.max(np.abs(Q - q_current) / self.max_velocity, axis=-1), np.inf)
+        order = np.argsort(cost, axis=1, kind="stable")
+        return [Qi[oi[: n]] for Qi, oi, n in zip(Q, order, ok.sum(axis=1), strict=True)]
+
     def ik(self, X_WS: np.ndarray, q_current: np.ndarray) -> np.ndarray:
         """All IK solutions for sensor pose X_WS, each joint at its 2-pi equivalent nearest
         q_current, sorted by the time the slowest joint needs (nearest first). Shape (k, 6)."""
-        X_base_tool0 = self._X_base_W @ np.asarray(X_WS, float) @ self._X_S_tool0
-        Q, ok = kinematics.inverse_kinematics(X_base_tool0)
-        Q = kinematics.nearest_equivalents(Q[ok], q_current)
-        if len(Q) == 0:
-            return Q
-        cost = np.max(np.abs(Q - q_current) / self.max_velocity, axis=1)
-        return Q[np.argsort(cost, kind="stable")]
+        return self._ik_batch(X_WS, np.asarray(q_current, float))[0]
 
-    def reachable(self, X_WS: np.ndarray, q_current: np.ndarray | None = None) -> bool:
-        """Whether some IK solution for sensor pose X_WS is collision free (the path is not
-        checked: that is `plan`'s job once a view is chosen)."""
+    def first_reachable(self, X_WS: np.ndarray, q_current: np.ndarray | None = None
+                        ) -> np.ndarray:
+        """For each row of sensor poses (B, A, 4, 4), the index of the first pose with a
+        collision-free IK solution, or -1. One IK call serves all B x A poses; paths are not
+        checked (that is `plan`'s job once a view is chosen)."""
+        X_WS = np.asarray(X_WS, float)
+        B, A = X_WS.shape[:2]
         q_ref = self.home if q_current is None else np.asarray(q_current, float)
-        return any(self.collision_free(q) for q in self.ik(X_WS, q_ref))
+        solutions = self._ik_batch(X_WS.reshape(-1, 4, 4), q_ref)
+        first = np.full(B, -1)
+        for b in range(B):
+            for a in range(A):
+                if any(self.collision_free(q) for q in solutions[b * A + a]):
+                    first[b] = a
+                    break
+        return first
 
     def plan(self, q_current: np.ndarray, X_WS: np.ndarray, start_time: float = 0.0
              ) -> MotionPlan:

@@ -16,6 +16,7 @@ from pathlib import Path
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
+from lrnbv_drake.planning.config import PlannerParams
 from lrnbv_drake.resources import package_url
 
 #: The UR5e's usual "home": arm up, tool pointing down.
@@ -102,6 +103,48 @@ class SensorConfig:
 
 
 @dc.dataclass
+class MappingConfig:
+    """The occupancy map (OctoMap semantics, docs/mapping.md)."""
+
+    # Cell size, metres (Table 1's Octomap resolution).
+    resolution: float = 0.01
+    # World box the map covers, metres.
+    lower: list[float] = dc.field(default_factory=lambda: [-0.2, -0.6, -0.05])
+    upper: list[float] = dc.field(default_factory=lambda: [1.0, 0.6, 0.9])
+    # "ray": one ray per zone, like OctoMap's insertPointCloud of 64 points; "cone": each
+    # zone's whole footprint frees space up to the surface and marks it.
+    insertion: str = "ray"
+    # Sub-rays per zone side in cone mode.
+    cone_subrays: int = 5
+    # Points farther than this only free space up to it (OctoMap's maxrange); <= 0: no limit.
+    max_range: float = 2.0
+    # Zones with no target free space along their ray up to max_range.
+    free_no_target: bool = False
+
+
+@dc.dataclass
+class ExtractionConfig:
+    """Finding the object among the occupied cells (perception.ExtractionParams)."""
+
+    # Cells below the table top plus this are the table, metres.
+    table_tolerance: float = 0.015
+    # DBSCAN radius (metres) and core-point neighbour count. One frame's zone points lie
+    # d * tan(5.625 deg), 3-5 cm, apart at 0.3-0.5 m: the radius must bridge that.
+    dbscan_eps: float = 0.05
+    dbscan_min_samples: int = 3
+    # Smaller clusters are noise.
+    min_cluster_points: int = 10
+    # The object is the largest cluster within this xy distance of `center`, metres.
+    center: list[float] = dc.field(default_factory=lambda: [0.5, 0.0])
+    max_center_distance: float = 0.35
+    # The ROI is the object's box grown by this, metres.
+    roi_margin: float = 0.05
+    # Boxes enclose the occupied cells (True) or their centres (False). Edge zones already put
+    # points up to half a zone beyond an edge; enclosing the cells adds a cell more.
+    enclose_cells: bool = False
+
+
+@dc.dataclass
 class VisualizationConfig:
     """What Meshcat shows."""
 
@@ -123,6 +166,11 @@ class Scenario:
     cell: CellConfig = dc.field(default_factory=CellConfig)
     object: ObjectConfig = dc.field(default_factory=ObjectConfig)
     sensor: SensorConfig = dc.field(default_factory=SensorConfig)
+    mapping: MappingConfig = dc.field(default_factory=MappingConfig)
+    extraction: ExtractionConfig = dc.field(default_factory=ExtractionConfig)
+    planner: PlannerParams = dc.field(default_factory=PlannerParams)
+    # Hard cap on acquisitions in one episode, whatever the planner.
+    max_poses: int = 40
     visualization: VisualizationConfig = dc.field(default_factory=VisualizationConfig)
 
 

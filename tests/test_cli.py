@@ -69,10 +69,10 @@ def test_replay_is_a_self_contained_page(heu_run):
 
 
 def test_same_seed_same_run_other_seed_other_noise(heu_run, tmp_path):
-    assert main(["run", "--object", "horizontal_box", "--seed", "3", "--out",
-                 str(tmp_path / "a")]) == 0
-    assert main(["run", "--object", "horizontal_box", "--seed", "4", "--out",
-                 str(tmp_path / "b")]) == 0
+    assert main(["run", "--planner", "heu", "--object", "horizontal_box", "--seed", "3",
+                 "--out", str(tmp_path / "a")]) == 0
+    assert main(["run", "--planner", "heu", "--object", "horizontal_box", "--seed", "4",
+                 "--out", str(tmp_path / "b")]) == 0
     ref, same, other = (np.load(p / "frames.npz") for p in (heu_run, tmp_path / "a",
                                                              tmp_path / "b"))
     for key in ref.files:
@@ -105,7 +105,7 @@ def test_user_mesh_with_scale_and_pose(tmp_path):
     path = tmp_path / "part.stl"
     mesh.export(path)
     out = tmp_path / "run"
-    assert main(["run", "--object", str(path), "--object-scale", "0.001",
+    assert main(["run", "--planner", "heu", "--object", str(path), "--object-scale", "0.001",
                  "--object-pose", "0.48,0.05,30", "--out", str(out)]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["object"] == str(path)

@@ -4,14 +4,13 @@ import numpy as np
 import pytest
 
 from lrnbv_drake.boxes import AlignedBox
-from lrnbv_drake.planning.lrnbv import LrNbvPolicy, PlannerParams, _Cached, cache_capacity
+from lrnbv_drake.planning.config import GainParams, PlannerParams, UtilityWeights
+from lrnbv_drake.planning.lrnbv import LrNbvPolicy, _Cached, cache_capacity
 from lrnbv_drake.planning.policy import Observation
 from lrnbv_drake.planning.rrt import ViewTree
 from lrnbv_drake.planning.utility import (
-    GainParams,
     Gains,
     UtilityFunction,
-    UtilityWeights,
     VisitedGrid,
     evaluate_gains,
     make_snapshot,
@@ -126,8 +125,8 @@ def test_best_branch_maximises_the_summed_utility():
 def _policy(**kwargs):
     params = PlannerParams(samples_per_iteration=10, **kwargs)
     workspace = AlignedBox(np.array([0.0, -0.5, 0.2]), np.array([0.8, 0.5, 0.7]))
-    return LrNbvPolicy(params, ZoneGeometry(), workspace, reachable=lambda X: True,
-                       seed=1)
+    return LrNbvPolicy(params, ZoneGeometry(), workspace,
+                       first_reachable=lambda poses: np.zeros(len(poses), int), seed=1)
 
 
 def _observation(grid, extraction=None, n=1):

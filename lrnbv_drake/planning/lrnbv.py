@@ -24,44 +24,19 @@ import time
 import numpy as np
 
 from lrnbv_drake.boxes import AlignedBox
+from lrnbv_drake.planning.config import PlannerParams
 from lrnbv_drake.planning.policy import Observation, Proposal, ViewpointPolicy
-from lrnbv_drake.planning.rrt import Reachable, TreeParams, ViewTree, expand_tree
+from lrnbv_drake.planning.rrt import FirstReachable, ViewTree, expand_tree
 from lrnbv_drake.planning.utility import (
-    GainParams,
     Gains,
     PlanningSnapshot,
     UtilityFunction,
-    UtilityWeights,
     VisitedGrid,
     evaluate_gains,
     make_snapshot,
     sensor_rays,
 )
 from lrnbv_drake.sensor import ZoneGeometry
-
-
-@dc.dataclass
-class PlannerParams:
-    """LR-NBV's parameters (Table 1 of the paper where it gives them)."""
-
-    # Hard cap on iterations (acquisitions after the first).
-    num_iterations: int = 300
-    # Samples per tree, n.
-    samples_per_iteration: int = 50
-    # Cached nodes kept at the first iteration, m_0; m_i falls linearly to 0 at num_iterations.
-    num_cached_nodes: int = 50
-    # Cell size of the visited grid, metres.
-    visited_cell_size: float = 0.18
-    weights: UtilityWeights = dc.field(default_factory=UtilityWeights)
-    gains: GainParams = dc.field(default_factory=GainParams)
-    tree: TreeParams = dc.field(default_factory=TreeParams)
-    # tau: off-branch nodes with a utility above this are cached.
-    cache_threshold: float = 0.0
-    # Spread of the samples drawn around a cached node by ExpandRRTCached, metres.
-    cached_sample_spread: float = 0.05
-    # Where to look for the object while none has been found: ((x0, y0, z0), (x1, y1, z1)).
-    search_region: tuple[tuple[float, float, float], tuple[float, float, float]] = (
-        (0.25, -0.3, 0.0), (0.75, 0.3, 0.3))
 
 
 @dc.dataclass
@@ -84,7 +59,8 @@ class LrNbvPolicy(ViewpointPolicy):
         params: planner parameters.
         geometry: the sensor's zones, from which the gain rays are cast.
         workspace: box the sensor positions must lie in.
-        reachable: whether the robot can put the sensor at a pose (4x4).
+        first_reachable: the first of several poses (A, 4, 4) the robot can put the sensor
+            at, or None.
         table_height: the ROI never extends below the table top.
         seed: seed of the tree sampling.
         variant: "lrnbv" or "nbv" (Gd and Gv weights set to zero).
@@ -93,7 +69,7 @@ class LrNbvPolicy(ViewpointPolicy):
     capture_initial = True
 
     def __init__(self, params: PlannerParams, geometry: ZoneGeometry, workspace: AlignedBox,
-                 reachable: Reachable, table_height: float = 0.0, seed: int = 0,
+                 first_reachable: FirstReachable, table_height: float = 0.0, seed: int = 0,
                  variant: str = "lrnbv"):
         if variant not in ("lrnbv", "nbv"):
             raise ValueError(f"unknown variant '{variant}': expected 'lrnbv' or 'nbv'")
@@ -105,7 +81,7 @@ class LrNbvPolicy(ViewpointPolicy):
         self.utility = UtilityFunction(weights, params.gains.normalize)
         self.rays = sensor_rays(geometry, params.gains.rays_per_zone)
         self.workspace = workspace
-        self.reachable = reachable
+        self.first_reachable = first_reachable
         self.table_height = table_height
         self.visited = VisitedGrid(params.visited_cell_size)
         self.rng = np.random.default_rng(seed)
@@ -130,7 +106,8 @@ class LrNbvPolicy(ViewpointPolicy):
         if extraction is not None and extraction.found:
             roi, points, center = extraction.roi, extraction.object_points, extraction.center
         else:
-            roi = AlignedBox(*(np.asarray(v, float) for v in self.params.search_region))
+            roi = AlignedBox(np.asarray(self.params.search_lower, float),
+                             np.asarray(self.params.search_upper, float))
             points, center = np.zeros((0, 3)), roi.center
         lower = roi.lower.copy()
         lower[2] = max(lower[2], self.table_height)  # nothing to explore under the table top
@@ -153,7 +130,8 @@ class LrNbvPolicy(ViewpointPolicy):
     def _grow(self, root: np.ndarray, sampler, snapshot: PlanningSnapshot, roi: AlignedBox,
               steer: bool = True) -> tuple[ViewTree, np.ndarray, list[int]]:
         tree = expand_tree(root, self.params.samples_per_iteration, sampler, self.workspace,
-                           roi, self._scorer(snapshot), self.reachable, self.params.tree, steer)
+                           roi, self._scorer(snapshot), self.first_reachable, self.params.tree,
+                           steer)
         utilities = self.utility(tree.candidate_gains())
         return tree, utilities, tree.best_branch(utilities)
 

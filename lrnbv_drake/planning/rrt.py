@@ -15,27 +15,15 @@ from collections.abc import Callable
 import numpy as np
 
 from lrnbv_drake.boxes import AlignedBox
+from lrnbv_drake.planning.config import TreeParams
 from lrnbv_drake.planning.utility import Gains
-from lrnbv_drake.poses import look_at
+from lrnbv_drake.poses import look_at_batch
 
 #: Scores a batch of poses (P, 4, 4): raw gains and utilities under the current normaliser.
 Scorer = Callable[[np.ndarray], tuple[Gains, np.ndarray]]
-#: Whether the robot can put the sensor at a pose (IK within limits and no collision).
-Reachable = Callable[[np.ndarray], bool]
-
-
-@dc.dataclass
-class TreeParams:
-    """Tree growth."""
-
-    # Longest edge between a node and its parent, metres.
-    max_edge: float = 0.25
-    # Clearance kept between sensor positions and the ROI, metres.
-    roi_clearance: float = 0.10
-    # Aim points: the ROI centre and four points this fraction of the ROI's size around it.
-    aim_offset_fraction: float = 0.25
-    # Give up after this many samples per wanted node (unreachable or rejected samples).
-    max_attempts_per_node: int = 6
+#: For each of B nodes, the index of the first of its views (B, A, 4, 4) the robot can put the
+#: sensor at (IK within limits, no collision), or -1: (B,) int.
+FirstReachable = Callable[[np.ndarray], np.ndarray]
 
 
 @dc.dataclass
@@ -83,47 +71,62 @@ def aim_points(roi: AlignedBox, fraction: float) -> np.ndarray:
     return c + offsets
 
 
-def orient(position: np.ndarray, aims: np.ndarray) -> np.ndarray:
-    """(A, 4, 4) sensor poses at `position` looking at each aim point."""
-    return np.array([look_at(position, a) for a in aims])
+def orient(positions: np.ndarray, aims: np.ndarray) -> np.ndarray:
+    """(B, A, 4, 4) sensor poses at each of `positions` (B, 3) looking at each aim point."""
+    B, A = len(positions), len(aims)
+    eyes = np.repeat(positions, A, axis=0)
+    return look_at_batch(eyes, np.tile(aims, (B, 1))).reshape(B, A, 4, 4)
 
 
 def expand_tree(root: np.ndarray, n: int, sample_position: Callable[[], np.ndarray],
-                workspace: AlignedBox, roi: AlignedBox, score: Scorer, reachable: Reachable,
-                params: TreeParams, steer: bool = True) -> ViewTree:
+                workspace: AlignedBox, roi: AlignedBox, score: Scorer,
+                first_reachable: FirstReachable, params: TreeParams,
+                steer: bool = True) -> ViewTree:
     """Grows a tree of up to `n` candidate views from the pose `root` (4x4).
+
+    Nodes are added in rounds of `params.round_size`: each node of a round steers from its
+    nearest node in the tree as it stood when the round began, and the round's views share one
+    utility evaluation and one IK call (which is what makes a tree cheap in Python).
 
     Args:
         sample_position: draws the position the next node steers towards.
-        steer: limit edges to `params.max_edge`; without, a node is placed at the sample
-            itself (ExpandRRTCached samples around cached nodes that may be far away).
         workspace: where sensor positions may be.
         roi: the region of interest the views look at.
         score: gains and utilities of a batch of poses.
-        reachable: whether the robot reaches a pose.
+        first_reachable: for each node's views, the first one the robot reaches.
+        steer: limit edges to `params.max_edge`; without, a node is placed at the sample
+            itself (ExpandRRTCached samples around cached nodes that may be far away).
     """
     tree = ViewTree(poses=[np.asarray(root, float)], parents=[-1],
                     gains=[Gains(*(np.zeros(1) for _ in range(4)))])
     keep_out = roi.inflate(params.roi_clearance)
     aims = aim_points(roi, params.aim_offset_fraction)
-    positions = [tree.poses[0][:3, 3]]
-    for _ in range(n * params.max_attempts_per_node):
-        if tree.size >= n:
-            break
-        target = sample_position()
-        distances = np.linalg.norm(np.asarray(positions) - target, axis=1)
-        nearest = int(np.argmin(distances))
-        step = min(1.0, params.max_edge / max(distances[nearest], 1e-12)) if steer else 1.0
-        position = positions[nearest] + step * (target - positions[nearest])
-        if not workspace.contains(position[None])[0] or keep_out.contains(position[None])[0]:
+    positions = np.asarray(tree.poses[0][:3, 3])[None]
+    attempts = n * params.max_attempts_per_node
+    while tree.size < n and attempts > 0:
+        batch = min(params.round_size, n - tree.size, attempts)
+        attempts -= batch
+        targets = np.array([sample_position() for _ in range(batch)])
+        distances = np.linalg.norm(targets[:, None] - positions[None], axis=2)
+        nearest = np.argmin(distances, axis=1)
+        d = distances[np.arange(batch), nearest]
+        step = np.minimum(1.0, params.max_edge / np.maximum(d, 1e-12)) if steer else \
+            np.ones(batch)
+        new = positions[nearest] + step[:, None] * (targets - positions[nearest])
+        keep = workspace.contains(new) & ~keep_out.contains(new)
+        if not keep.any():
             continue
-        poses = orient(position, aims)
-        gains, utilities = score(poses)
-        for k in np.argsort(-utilities, kind="stable"):
-            if reachable(poses[k]):
-                tree.poses.append(poses[k])
-                tree.parents.append(nearest)
-                tree.gains.append(gains.take(k))
-                positions.append(position)
-                break
+        new, nearest = new[keep], nearest[keep]
+        poses = orient(new, aims)
+        gains, utilities = score(poses.reshape(-1, 4, 4))
+        utilities = utilities.reshape(len(new), len(aims))
+        order = np.argsort(-utilities, axis=1, kind="stable")
+        ordered = np.take_along_axis(poses, order[:, :, None, None], axis=1)
+        first = first_reachable(ordered)
+        for b in np.flatnonzero(first >= 0):
+            k = order[b, first[b]]
+            tree.poses.append(poses[b, k])
+            tree.parents.append(int(nearest[b]))
+            tree.gains.append(gains.take(b * len(aims) + k))
+        positions = np.array([X[:3, 3] for X in tree.poses])
     return tree

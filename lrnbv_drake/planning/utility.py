@@ -25,34 +25,10 @@ import numpy as np
 from scipy import ndimage
 
 from lrnbv_drake.boxes import AlignedBox
+from lrnbv_drake.planning.config import GainParams, UtilityWeights
 from lrnbv_drake.sensor import ZoneGeometry
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 1
-
-
-@dc.dataclass
-class UtilityWeights:
-    """Weights of the four gains (the paper's Table 1 by default)."""
-
-    exploration: float = 500.0
-    density: float = 0.05
-    quality: float = 0.08
-    visited: float = 500.0
-
-
-@dc.dataclass
-class GainParams:
-    """How the gains are computed (docs/algorithm.md gives the reasons for each default)."""
-
-    # Length of each ray (t = 1), metres.
-    max_range: float = 1.0
-    # Sub-rays per zone side (1: one ray through each zone centre).
-    rays_per_zone: int = 1
-    # Radius of the neighbourhood counted by the density gain, metres.
-    density_radius: float = 0.02
-    # Divide Ge, Gd and Gq by their running maxima so that Table 1's weights compare
-    # like with like (as the FKIE planner the paper builds on does).
-    normalize: bool = True
 
 
 @dc.dataclass
@@ -146,10 +122,11 @@ def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state
     cell_volume = res * res * res
     for p in range(poses.shape[0]):
         o = poses[p, :3, 3]
+        rotation = np.ascontiguousarray(poses[p, :3, :3])
         ge = 0.0
         gd = 0.0
         for r in range(rays.shape[0]):
-            d = poses[p, :3, :3] @ rays[r]
+            d = rotation @ rays[r]
             t0, t1 = _slab(o, d, roi_lo, roi_hi, max_range)
             if t1 <= t0:
                 continue
@@ -183,15 +160,19 @@ class Gains:
     quality: np.ndarray
     visited: np.ndarray
 
+    def _fields(self) -> tuple[np.ndarray, ...]:
+        # Not dataclasses.astuple, which deep-copies every array.
+        return self.exploration, self.density, self.quality, self.visited
+
     def take(self, index) -> Gains:
         """The gains of a subset of the poses."""
-        return Gains(*(np.atleast_1d(g[index]) for g in dc.astuple(self)))
+        return Gains(*(np.atleast_1d(g[index]) for g in self._fields()))
 
     @staticmethod
     def concatenate(parts: list[Gains]) -> Gains:
         if not parts:
             return Gains(*(np.zeros(0) for _ in range(4)))
-        return Gains(*(np.concatenate(g) for g in zip(*(dc.astuple(p) for p in parts),
+        return Gains(*(np.concatenate(g) for g in zip(*(p._fields() for p in parts),
                                                        strict=True)))
 
 

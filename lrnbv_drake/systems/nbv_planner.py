@@ -12,7 +12,10 @@ The episode ends (the update returns ReachedTermination) when the policy is done
 `max_poses` frames have been captured, or when no proposed viewpoint can be reached.
 
 The policy and the motion planner are held by the system, not the context: the policy keeps
-planner memory (cached nodes, visited cells) across steps, as the algorithm requires.
+planner memory (cached nodes, visited cells) across steps, as the algorithm requires. The
+episode log is an append-only handle in the state (its deep copy is itself: Drake copies the
+state around every update, and the log grows with every pose). Like the map, it makes the
+system not context-pure: run an episode forward once, with a new system for a new episode.
 """
 
 from __future__ import annotations
@@ -55,15 +58,22 @@ class Acquisition:
 
 @dc.dataclass
 class EpisodeLog:
-    """Everything an episode did, in order."""
+    """Everything an episode did, in order. A handle: copies share it (see the module doc)."""
 
     acquisitions: list[Acquisition] = dc.field(default_factory=list)
+    # The object extraction after each acquisition (index-aligned with `acquisitions`).
+    extractions: list[Any] = dc.field(default_factory=list)
+    # Seconds the clustering took to give each of those extractions.
+    clustering_seconds: list[float] = dc.field(default_factory=list)
     # Viewpoints that could not be reached: (time, X_WS, failure, reason).
     motion_failures: list[tuple[float, np.ndarray, str, str]] = dc.field(default_factory=list)
     # Seconds spent choosing each viewpoint (policy) and planning its motion.
     policy_seconds: list[float] = dc.field(default_factory=list)
     motion_seconds: list[float] = dc.field(default_factory=list)
     termination: str = ""
+
+    def __deepcopy__(self, memo: dict) -> EpisodeLog:
+        return self
 
 
 @dc.dataclass
@@ -108,7 +118,7 @@ class NbvPlanner(LeafSystem):
         self._map_port = self.DeclareAbstractInputPort("map", AbstractValue.Make(None))
         self._object_port = self.DeclareAbstractInputPort("object", AbstractValue.Make(None))
 
-        initial = _State(hold=q_initial,
+        initial = _State(hold=q_initial, log=EpisodeLog(),
                          mode=Mode.SETTLE if policy.capture_initial else Mode.PLAN)
         self._state_index = self.DeclareAbstractState(AbstractValue.Make(initial))
         state_ticket = {self.abstract_state_ticket(self._state_index)}
@@ -186,29 +196,34 @@ class NbvPlanner(LeafSystem):
         )
 
     def _capture(self, context, s: _State, frame: ToFFrame) -> None:
-        log = dc.replace(s.log, acquisitions=[*s.log.acquisitions, Acquisition(
+        s.log.acquisitions.append(Acquisition(
             index=len(s.log.acquisitions), time=context.get_time(),
             q=np.asarray(self._q_port.Eval(context), float).copy(),
             X_WS=self._pose_port.Eval(context).GetAsMatrix4(), frame=frame,
-            info=s.pending_info)])
-        s.log, s.pending_info = log, {}
+            info=s.pending_info))
+        s.pending_info = {}
         # Two update periods: the map inserts the frame on the next one, the planner reads the
         # updated map on the one after.
         s.mode, s.t_ready = Mode.WAIT_MAP, context.get_time() + 1.5 * self._period
-        if len(log.acquisitions) >= self._max_poses:
-            self._finish(s, f"reached the cap of {self._max_poses} poses")
 
     def _finish(self, s: _State, reason: str) -> None:
         s.mode = Mode.DONE
-        s.log = dc.replace(s.log, termination=reason)
+        s.log.termination = reason
 
     def _plan(self, context, s: _State) -> None:
+        started = time.perf_counter()
         observation = self._observation(context, s)
+        if observation.n_acquisitions > len(s.log.extractions):
+            s.log.extractions.append(observation.extraction)
+            s.log.clustering_seconds.append(time.perf_counter() - started)
+        if observation.n_acquisitions >= self._max_poses:
+            self._finish(s, f"reached the cap of {self._max_poses} poses")
+            return
         started = time.perf_counter()
         proposal = self._policy.propose(observation)
         policy_seconds = time.perf_counter() - started
+        s.log.policy_seconds.append(policy_seconds)
         if proposal.done:
-            s.log = dc.replace(s.log, policy_seconds=[*s.log.policy_seconds, policy_seconds])
             self._finish(s, proposal.reason)
             return
         started = time.perf_counter()
@@ -223,10 +238,8 @@ class NbvPlanner(LeafSystem):
                 break
             failures.append((context.get_time(), np.asarray(X_WS), plan.failure.value,
                              plan.reason))
-        s.log = dc.replace(
-            s.log, motion_failures=[*s.log.motion_failures, *failures],
-            policy_seconds=[*s.log.policy_seconds, policy_seconds],
-            motion_seconds=[*s.log.motion_seconds, time.perf_counter() - started])
+        s.log.motion_failures.extend(failures)
+        s.log.motion_seconds.append(time.perf_counter() - started)
         if s.mode is Mode.MOVE:
             s.failed_in_a_row = 0
             return

@@ -1,0 +1,74 @@
+"""Parameters of the viewpoint planners, loadable from scenario YAML.
+
+The defaults are the paper's Table 1 where it gives a value; docs/algorithm.md explains every
+other default. This module has no `from __future__ import annotations` because Drake's YAML
+loader reads the dataclass field types.
+"""
+
+import dataclasses as dc
+
+
+@dc.dataclass
+class UtilityWeights:
+    """Weights of the four gains (Table 1)."""
+
+    exploration: float = 500.0
+    density: float = 0.05
+    quality: float = 0.08
+    visited: float = 500.0
+
+
+@dc.dataclass
+class GainParams:
+    """How the gains are computed."""
+
+    # Length of each gain ray (the paper's t = 1), metres.
+    max_range: float = 1.0
+    # Sub-rays per zone side (1: one ray through each zone centre).
+    rays_per_zone: int = 1
+    # Radius r_d of the neighbourhood counted by the density gain, metres.
+    density_radius: float = 0.02
+    # Divide Ge, Gd and Gq by their running maxima so that Table 1's weights compare like with
+    # like (as the FKIE planner the paper builds on does).
+    normalize: bool = True
+
+
+@dc.dataclass
+class TreeParams:
+    """Growth of the tree of views."""
+
+    # Longest edge between a node and its parent, metres.
+    max_edge: float = 0.25
+    # Clearance kept between sensor positions and the ROI, metres.
+    roi_clearance: float = 0.10
+    # Aim points: the ROI centre and four points this fraction of the ROI's size around it.
+    aim_offset_fraction: float = 0.25
+    # Give up after this many samples per wanted node (unreachable or rejected samples).
+    max_attempts_per_node: int = 6
+    # Nodes added per round: a round's nodes steer from the tree as it was when the round
+    # began, and share one utility evaluation and one IK call.
+    round_size: int = 10
+
+
+@dc.dataclass
+class PlannerParams:
+    """LR-NBV's parameters."""
+
+    # Hard cap on iterations (acquisitions after the first), Table 1's num_iterations.
+    num_iterations: int = 300
+    # Samples per tree, n (Table 1's sample_per_iteration).
+    samples_per_iteration: int = 50
+    # Cached nodes kept at the first iteration, m_0; m_i falls linearly to 0 at num_iterations.
+    num_cached_nodes: int = 50
+    # Cell size of the visited grid, metres (Table 1's visited_cells_grid_size).
+    visited_cell_size: float = 0.18
+    weights: UtilityWeights = dc.field(default_factory=UtilityWeights)
+    gains: GainParams = dc.field(default_factory=GainParams)
+    tree: TreeParams = dc.field(default_factory=TreeParams)
+    # tau: off-branch nodes with a utility above this are cached.
+    cache_threshold: float = 0.0
+    # Spread of the samples drawn around a cached node by ExpandRRTCached, metres.
+    cached_sample_spread: float = 0.05
+    # Where to look for the object while none has been found (world box, metres).
+    search_lower: list[float] = dc.field(default_factory=lambda: [0.25, -0.3, 0.0])
+    search_upper: list[float] = dc.field(default_factory=lambda: [0.75, 0.3, 0.3])

@@ -1,0 +1,50 @@
+"""The closed loop: plan, move, capture, map, cluster, plan again, until Algorithm 1 stops."""
+
+import numpy as np
+import pytest
+
+from lrnbv_drake.episode import run_episode
+from lrnbv_drake.scenario import Scenario
+
+
+@pytest.fixture(scope="module")
+def lrnbv(tmp_path_factory):
+    return run_episode(Scenario(seed=0), "lrnbv", tmp_path_factory.mktemp("lrnbv"))
+
+
+def test_lrnbv_on_the_horizontal_box_ends_by_the_paper_rule_with_a_good_box(lrnbv):
+    report = lrnbv.report
+    assert "Algorithm 1, line 24" in report["termination"]
+    assert report["metrics"]["box_found"]
+    assert report["metrics"]["iou"] >= 0.7
+    # Every dimension within 3 cm of the truth (0.30 x 0.20 x 0.12 m).
+    np.testing.assert_allclose(report["metrics"]["estimated_dims"], [0.30, 0.20, 0.12],
+                               atol=0.03)
+    assert report["n_poses"] < Scenario().max_poses
+    # The first frame is the initial acquisition; every later pose came from a plan.
+    assert report["poses"][0]["info"] == {}
+    assert all("utility" in p["info"] for p in report["poses"][1:])
+    curve = report["metrics"]["coverage_curve"]["0.01"]
+    assert len(curve) == report["n_poses"]
+    assert curve[-1] == report["metrics"]["coverage"]["0.01"]
+    timing = report["timing"]
+    assert len(timing["map_update_s"]) == report["n_poses"]
+    assert len(timing["clustering_s"]) == report["n_poses"]
+    assert len(timing["tree_expansion_s"]) == report["n_poses"] - 1
+
+
+def test_same_seed_same_episode(lrnbv, tmp_path):
+    again = run_episode(Scenario(seed=0), "lrnbv", tmp_path)
+    a, b = (np.load(r.out_dir / "frames.npz") for r in (lrnbv, again))
+    for key in a.files:
+        np.testing.assert_array_equal(a[key], b[key])
+
+
+def test_nbv_runs_the_same_algorithm_without_density_and_visited(tmp_path):
+    report = run_episode(Scenario(seed=0), "nbv", tmp_path).report
+    assert report["planner"] == "nbv"
+    assert report["metrics"]["box_found"]
+    assert "line 24" in report["termination"] or "cap" in report["termination"]
+    for pose in report["poses"][1:]:
+        # Without Gv, a visited cell costs nothing, so no planned utility can be negative.
+        assert pose["info"]["utility"] >= 0
