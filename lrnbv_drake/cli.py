@@ -84,9 +84,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"Meshcat: {meshcat.web_url()}")
     result = run_episode(scenario, args.planner, args.out, meshcat)
     report = result.report
+    m = report["metrics"]
     print(f"{report['planner']} on {report['object']} (seed {report['seed']}): "
-          f"{report['n_poses']} poses, {len(report['motion_failures'])} unreachable viewpoints, "
-          f"ended: {report['termination']}")
+          f"{report['n_poses']} poses ({m['n_useless_poses']} useless), "
+          f"{len(report['motion_failures'])} unreachable viewpoints")
+    print(f"ended: {report['termination']}")
+    if m["box_found"]:
+        est = " x ".join(f"{v:.3f}" for v in m["estimated_dims"])
+        true = " x ".join(f"{v:.3f}" for v in m["true_dims"])
+        print(f"box L x W x H: {est} m (true {true}); IoU {m['iou']:.3f}")
+    else:
+        print(f"no object found: {report['extraction']}")
+    print(f"surface coverage: {100 * m['coverage']['0.01']:.1f} % within 1 cm, "
+          f"{100 * m['coverage']['0.02']:.1f} % within 2 cm")
     print(f"wall {result.wall_seconds:.1f} s; wrote {result.out_dir}/frames.npz, report.json"
           + (", replay.html" if meshcat is not None else ""))
     return 0

@@ -37,6 +37,7 @@ from lrnbv_drake.scenario import Scenario, ScenarioError
 from lrnbv_drake.systems.nbv_planner import EpisodeLog, NbvPlanner
 from lrnbv_drake.systems.object_clustering import ObjectClustering
 from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
+from lrnbv_drake.systems.planner_visualizer import PlannerVisualizer
 from lrnbv_drake.systems.tof_visualizer import ToFVisualizer
 
 log = logging.getLogger(__name__)
@@ -119,11 +120,15 @@ class EpisodeDiagram:
     policy: ViewpointPolicy
 
 
-def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = None
-                  ) -> EpisodeDiagram:
-    """The closed-loop diagram of an episode: cell, map, clustering and the planner."""
+def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = None,
+                  hardware: bool = False) -> EpisodeDiagram:
+    """The closed-loop diagram of an episode: cell, map, clustering and the planner.
+
+    With `hardware`, the cell is the real one (`make_cell(..., hardware=True)`); everything
+    else is the same diagram.
+    """
     builder = DiagramBuilder()
-    cell = builder.AddNamedSystem("cell", make_cell(scenario, meshcat))
+    cell = builder.AddNamedSystem("cell", make_cell(scenario, meshcat, hardware=hardware))
     motion = MotionPlanner(scenario)
     policy = make_policy(planner, scenario, motion, cell.models.placed_object)
     period = scenario.sensor.period / 2
@@ -152,6 +157,12 @@ def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = No
             show_points=scenario.visualization.show_points))
         builder.Connect(loop.GetOutputPort("acquired_frame"), vis.GetInputPort("acquired_frame"))
         builder.Connect(loop.GetOutputPort("acquired_pose"), vis.GetInputPort("acquired_pose"))
+        view = builder.AddNamedSystem("planner_visualizer", PlannerVisualizer(
+            meshcat, publish_period=period, cell_size=scenario.mapping.resolution))
+        builder.Connect(loop.GetOutputPort("plan"), view.GetInputPort("plan"))
+        builder.Connect(clustering.GetOutputPort("object"), view.GetInputPort("object"))
+        builder.Connect(map_system.GetOutputPort("occupied_points"),
+                        view.GetInputPort("occupied_points"))
     diagram = builder.Build()
     diagram.set_name("episode")
     return EpisodeDiagram(diagram, cell, loop, map_system, policy)

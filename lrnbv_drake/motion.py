@@ -17,11 +17,12 @@ import enum
 import itertools
 
 import numpy as np
-from pydrake.planning import RobotDiagramBuilder, SceneGraphCollisionChecker
+from pydrake.planning import SceneGraphCollisionChecker
 from pydrake.trajectories import PiecewisePolynomial
 
 from lrnbv_drake import kinematics
 from lrnbv_drake.cell import add_cell_models, fixed_pose
+from lrnbv_drake.resources import make_robot_diagram_builder
 from lrnbv_drake.scenario import HOME_POSITION, Scenario
 
 #: Model instances that move with the arm (the sensor mount is welded to tool0).
@@ -97,7 +98,7 @@ class MotionPlanner:
     """Plans collision-free, limited motions of the sensor for one scenario's cell."""
 
     def __init__(self, scenario: Scenario):
-        builder = RobotDiagramBuilder(time_step=0.0)
+        builder = make_robot_diagram_builder()
         add_cell_models(builder.plant(), scenario)
         plant = builder.plant()
         plant.Finalize()

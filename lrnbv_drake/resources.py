@@ -6,11 +6,14 @@ fetched at run time; URLs look like `package://lrnbv_drake_models/ur5e/ur5e.urdf
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
+from pydrake.planning import RobotDiagramBuilder
 
 PACKAGE_NAME = "lrnbv_drake_models"
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
@@ -30,23 +33,40 @@ def _add_models_package(parser: Parser) -> Parser:
     return parser
 
 
-def make_parser(plant: MultibodyPlant) -> Parser:
-    """A parser that knows models/ and can never download anything.
+@contextlib.contextmanager
+def _drake_models_registration_allowed() -> Iterator[None]:
+    """Lets Drake register (never fetch) its remote `drake_models` package while offline.
 
-    Drake's default package map registers the remote `drake_models` package, and refuses even
-    to register it when DRAKE_ALLOW_NETWORK excludes `package_map` (as it should be offline).
-    We never use that package: the registration is allowed for the constructor only and the
-    package is then removed, so nothing can resolve to a download.
+    Drake's default package map registers `drake_models`, and refuses even to register it when
+    DRAKE_ALLOW_NETWORK excludes `package_map`, which is right for an offline cell. Every
+    parser made here removes that package at once, so nothing can resolve to a download.
     """
     policy = os.environ.get(_NETWORK_ENV)
-    if policy is not None and "package_map" not in policy.split(":"):
-        os.environ[_NETWORK_ENV] = f"{policy}:package_map" if policy != "none" else "package_map"
-        try:
-            parser = Parser(plant)
-        finally:
-            os.environ[_NETWORK_ENV] = policy
-    else:
-        parser = Parser(plant)
+    if policy is None or "package_map" in policy.split(":"):
+        yield
+        return
+    os.environ[_NETWORK_ENV] = f"{policy}:package_map" if policy != "none" else "package_map"
+    try:
+        yield
+    finally:
+        os.environ[_NETWORK_ENV] = policy
+
+
+def _offline(parser: Parser) -> Parser:
     if parser.package_map().Contains("drake_models"):
         parser.package_map().Remove("drake_models")
     return _add_models_package(parser)
+
+
+def make_parser(plant: MultibodyPlant) -> Parser:
+    """A parser that knows models/ and can never download anything."""
+    with _drake_models_registration_allowed():
+        return _offline(Parser(plant))
+
+
+def make_robot_diagram_builder(time_step: float = 0.0) -> RobotDiagramBuilder:
+    """A RobotDiagramBuilder whose parser knows models/ and can never download anything."""
+    with _drake_models_registration_allowed():
+        builder = RobotDiagramBuilder(time_step=time_step)
+    _offline(builder.parser())
+    return builder

@@ -55,6 +55,7 @@ class HeuPolicy(ViewpointPolicy):
         if self._next >= len(self.poses):
             return Proposal(done=True, reason=f"visited the {len(self.poses)} ellipse poses")
         return Proposal(candidates=self.poses[self._next:],
+                        debug={"ellipse_positions": np.array([X[:3, 3] for X in self.poses])},
                         candidate_info=[{"ellipse_index": i}
                                         for i in range(self._next, len(self.poses))])
 

@@ -234,7 +234,14 @@ class LrNbvPolicy(ViewpointPolicy):
         # best one fails.
         order = [best] + [int(i) + 1 for i in np.argsort(-utilities, kind="stable")
                           if int(i) + 1 != best]
-        return Proposal(candidates=[tree.poses[i] for i in order], info=info,
+        debug = {
+            "tree_positions": np.array([X[:3, 3] for X in tree.poses]),
+            "tree_parents": np.array(tree.parents),
+            "best_branch": np.array(branch),
+            "cached_positions": np.array([c.X_WS[:3, 3] for c in self.cache]).reshape(-1, 3),
+            "roi": (roi.lower, roi.upper),
+        }
+        return Proposal(candidates=[tree.poses[i] for i in order], info=info, debug=debug,
                         candidate_info=[{"node_utility": float(utilities[i - 1])}
                                         for i in order])
 

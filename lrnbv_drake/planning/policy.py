@@ -40,7 +40,8 @@ class Proposal:
     """A policy's answer: candidate sensor poses, best first, or done with a reason.
 
     `info` describes the proposal (it is logged with the acquisition it leads to);
-    `candidate_info`, when given, holds one dict per candidate, merged into it.
+    `candidate_info`, when given, holds one dict per candidate, merged into it; `debug` holds
+    arrays worth drawing (tree, cache, ROI), not logged.
     """
 
     candidates: list[np.ndarray] = dc.field(default_factory=list)
@@ -48,6 +49,7 @@ class Proposal:
     reason: str = ""
     info: dict[str, Any] = dc.field(default_factory=dict)
     candidate_info: list[dict[str, Any]] | None = None
+    debug: dict[str, Any] = dc.field(default_factory=dict)
 
 
 class ViewpointPolicy(abc.ABC):

@@ -85,6 +85,8 @@ class _State:
     t_ready: float = 0.0
     pending_info: dict[str, Any] = dc.field(default_factory=dict)
     failed_in_a_row: int = 0
+    # The accepted proposal's drawable data, with "step" and the chosen "X_WS" added.
+    plan: dict[str, Any] = dc.field(default_factory=dict)
     log: EpisodeLog = dc.field(default_factory=EpisodeLog)
 
 
@@ -94,7 +96,8 @@ class NbvPlanner(LeafSystem):
     Input ports: `position_measured` (6), `tof_frame` (ToFFrame), `X_WS` (RigidTransform),
     `map` (OccupancyMap, optional), `object` (ExtractionResult, optional).
     Output ports: `position_command` (6), `acquired_frame` (ToFFrame), `acquired_pose`
-    (RigidTransform), `log` (EpisodeLog).
+    (RigidTransform), `log` (EpisodeLog), `plan` (dict: the accepted proposal's drawable data,
+    its `step` number and the chosen `X_WS`).
     """
 
     def __init__(self, policy: ViewpointPolicy, motion: MotionPlanner, q_initial: np.ndarray,
@@ -133,6 +136,8 @@ class NbvPlanner(LeafSystem):
                                        self._CalcAcquiredPose, prerequisites_of_calc=state_ticket)
         self.DeclareAbstractOutputPort("log", lambda: AbstractValue.Make(EpisodeLog()),
                                        self._CalcLog, prerequisites_of_calc=state_ticket)
+        self.DeclareAbstractOutputPort("plan", lambda: AbstractValue.Make({}),
+                                       self._CalcPlan, prerequisites_of_calc=state_ticket)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._Update)
 
     # Outputs -----------------------------------------------------------------------------
@@ -159,6 +164,9 @@ class NbvPlanner(LeafSystem):
 
     def _CalcLog(self, context, output) -> None:
         output.set_value(self._state(context).log)
+
+    def _CalcPlan(self, context, output) -> None:
+        output.set_value(self._state(context).plan)
 
     # The state machine -------------------------------------------------------------------
 
@@ -235,6 +243,8 @@ class NbvPlanner(LeafSystem):
                 s.trajectory, s.mode = plan.trajectory, Mode.MOVE
                 per_candidate = proposal.candidate_info[i] if proposal.candidate_info else {}
                 s.pending_info = {**proposal.info, **per_candidate, "candidate_rank": i}
+                s.plan = {**proposal.debug, "step": len(s.log.policy_seconds),
+                          "X_WS": np.asarray(X_WS)}
                 break
             failures.append((context.get_time(), np.asarray(X_WS), plan.failure.value,
                              plan.reason))

@@ -16,6 +16,7 @@ from pydrake.perception import PointCloud
 from pydrake.systems.framework import LeafSystem
 
 from lrnbv_drake.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.systems.meshcat_steps import show_from
 
 VALID_RGBA = Rgba(0.1, 0.8, 0.2, 1.0)
 NO_TARGET_RGBA = Rgba(0.9, 0.1, 0.1, 1.0)
@@ -67,16 +68,11 @@ class ToFVisualizer(LeafSystem):
                 if mask.any():
                     m.SetLineSegments(f"{path}/{name}", starts[:, mask], ends[:, mask], 2.0,
                                       rgba)
-            m.SetProperty(path, "visible", False, time_in_recording=0.0)
-            m.SetProperty(path, "visible", True, time_in_recording=t)
-            if k > 0:
-                m.SetProperty(f"{self._prefix}/rays/{k - 1:03d}", "visible", False,
-                              time_in_recording=t)
+            show_from(m, path, t, f"{self._prefix}/rays/{k - 1:03d}" if k > 0 else None)
         if self._show_points and valid.any():
             cloud = PointCloud(int(valid.sum()))
             cloud.mutable_xyzs()[:] = ends[:, valid]
             path = f"{self._prefix}/points/{k:03d}"
             m.SetObject(path, cloud, point_size=0.01, rgba=POINT_RGBA)
-            m.SetProperty(path, "visible", False, time_in_recording=0.0)
-            m.SetProperty(path, "visible", True, time_in_recording=t)
+            show_from(m, path, t)
         self._drawn.append(frame.sequence)
