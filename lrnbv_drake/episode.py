@@ -69,8 +69,8 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
         return LrNbvPolicy(
             scenario.planner, zone_geometry(scenario),
             workspace=AlignedBox(*(np.asarray(v, float) for v in motion.workspace)),
-            first_reachable=motion.first_reachable, table_height=scenario.cell.table_height,
-            seed=scenario.seed, variant=planner)
+            ik=motion.ik_batch, collision_free=motion.collision_free,
+            table_height=scenario.cell.table_height, seed=scenario.seed, variant=planner)
     raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
 
 

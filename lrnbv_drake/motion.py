@@ -132,8 +132,8 @@ class MotionPlanner:
         """Whether configuration q keeps the robot clear of the cell and of itself."""
         return bool(self._checker.CheckConfigCollisionFree(np.asarray(q, float)))
 
-    def _ik_batch(self, X_WS: np.ndarray, q_current: np.ndarray) -> list[np.ndarray]:
-        """For each sensor pose (N, 4, 4), its IK solutions as in `ik`."""
+    def ik_batch(self, X_WS: np.ndarray, q_current: np.ndarray) -> list[np.ndarray]:
+        """For each sensor pose (N, 4, 4), its IK solutions as in `ik`; one IK call for all."""
         X_base_tool0 = self._X_base_W @ np.asarray(X_WS, float).reshape(-1, 4, 4) @ \
             self._X_S_tool0
         Q, ok = kinematics.inverse_kinematics(X_base_tool0)
@@ -145,24 +145,7 @@ class MotionPlanner:
     def ik(self, X_WS: np.ndarray, q_current: np.ndarray) -> np.ndarray:
         """All IK solutions for sensor pose X_WS, each joint at its 2-pi equivalent nearest
         q_current, sorted by the time the slowest joint needs (nearest first). Shape (k, 6)."""
-        return self._ik_batch(X_WS, np.asarray(q_current, float))[0]
-
-    def first_reachable(self, X_WS: np.ndarray, q_current: np.ndarray | None = None
-                        ) -> np.ndarray:
-        """For each row of sensor poses (B, A, 4, 4), the index of the first pose with a
-        collision-free IK solution, or -1. One IK call serves all B x A poses; paths are not
-        checked (that is `plan`'s job once a view is chosen)."""
-        X_WS = np.asarray(X_WS, float)
-        B, A = X_WS.shape[:2]
-        q_ref = self.home if q_current is None else np.asarray(q_current, float)
-        solutions = self._ik_batch(X_WS.reshape(-1, 4, 4), q_ref)
-        first = np.full(B, -1)
-        for b in range(B):
-            for a in range(A):
-                if any(self.collision_free(q) for q in solutions[b * A + a]):
-                    first[b] = a
-                    break
-        return first
+        return self.ik_batch(X_WS, np.asarray(q_current, float))[0]
 
     def plan(self, q_current: np.ndarray, X_WS: np.ndarray, start_time: float = 0.0
              ) -> MotionPlan:

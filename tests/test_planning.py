@@ -126,7 +126,8 @@ def _policy(**kwargs):
     params = PlannerParams(samples_per_iteration=10, **kwargs)
     workspace = AlignedBox(np.array([0.0, -0.5, 0.2]), np.array([0.8, 0.5, 0.7]))
     return LrNbvPolicy(params, ZoneGeometry(), workspace,
-                       first_reachable=lambda poses: np.zeros(len(poses), int), seed=1)
+                       ik=lambda poses, q: [np.zeros((1, 6))] * len(poses),
+                       collision_free=lambda q: True, seed=1)
 
 
 def _observation(grid, extraction=None, n=1):

@@ -26,7 +26,7 @@ import numpy as np
 from lrnbv_drake.boxes import AlignedBox
 from lrnbv_drake.planning.config import PlannerParams
 from lrnbv_drake.planning.policy import Observation, Proposal, ViewpointPolicy
-from lrnbv_drake.planning.rrt import FirstReachable, ViewTree, expand_tree
+from lrnbv_drake.planning.rrt import Reach, ViewTree, expand_tree
 from lrnbv_drake.planning.utility import (
     Gains,
     PlanningSnapshot,
@@ -59,8 +59,9 @@ class LrNbvPolicy(ViewpointPolicy):
         params: planner parameters.
         geometry: the sensor's zones, from which the gain rays are cast.
         workspace: box the sensor positions must lie in.
-        first_reachable: the first of several poses (A, 4, 4) the robot can put the sensor
-            at, or None.
+        ik: IK solutions of sensor poses (N, 4, 4) from joints q: `ik(poses, q)`, each a
+            (k, 6) array, best first.
+        collision_free: whether a joint configuration is collision free.
         table_height: the ROI never extends below the table top.
         seed: seed of the tree sampling.
         variant: "lrnbv" or "nbv" (Gd and Gv weights set to zero).
@@ -69,7 +70,7 @@ class LrNbvPolicy(ViewpointPolicy):
     capture_initial = True
 
     def __init__(self, params: PlannerParams, geometry: ZoneGeometry, workspace: AlignedBox,
-                 first_reachable: FirstReachable, table_height: float = 0.0, seed: int = 0,
+                 ik, collision_free, table_height: float = 0.0, seed: int = 0,
                  variant: str = "lrnbv"):
         if variant not in ("lrnbv", "nbv"):
             raise ValueError(f"unknown variant '{variant}': expected 'lrnbv' or 'nbv'")
@@ -81,7 +82,9 @@ class LrNbvPolicy(ViewpointPolicy):
         self.utility = UtilityFunction(weights, params.gains.normalize)
         self.rays = sensor_rays(geometry, params.gains.rays_per_zone)
         self.workspace = workspace
-        self.first_reachable = first_reachable
+        self.ik = ik
+        self.collision_free = collision_free
+        self._reach: Reach | None = None
         self.table_height = table_height
         self.visited = VisitedGrid(params.visited_cell_size)
         self.rng = np.random.default_rng(seed)
@@ -130,8 +133,7 @@ class LrNbvPolicy(ViewpointPolicy):
     def _grow(self, root: np.ndarray, sampler, snapshot: PlanningSnapshot, roi: AlignedBox,
               steer: bool = True) -> tuple[ViewTree, np.ndarray, list[int]]:
         tree = expand_tree(root, self.params.samples_per_iteration, sampler, self.workspace,
-                           roi, self._scorer(snapshot), self.first_reachable, self.params.tree,
-                           steer)
+                           roi, self._scorer(snapshot), self._reach, self.params.tree, steer)
         utilities = self.utility(tree.candidate_gains())
         return tree, utilities, tree.best_branch(utilities)
 
@@ -168,6 +170,8 @@ class LrNbvPolicy(ViewpointPolicy):
         if self.iteration >= self.params.num_iterations:
             return Proposal(done=True, reason=f"reached {self.params.num_iterations} iterations")
 
+        q = observation.q
+        self._reach = Reach(lambda poses: self.ik(poses, q), self.collision_free)
         roi, object_points, center = self._roi(observation.extraction)
         snapshot = make_snapshot(observation.occupancy, roi, object_points, center,
                                  self.params.gains.density_radius)

@@ -21,9 +21,15 @@ from lrnbv_drake.poses import look_at_batch
 
 #: Scores a batch of poses (P, 4, 4): raw gains and utilities under the current normaliser.
 Scorer = Callable[[np.ndarray], tuple[Gains, np.ndarray]]
-#: For each of B nodes, the index of the first of its views (B, A, 4, 4) the robot can put the
-#: sensor at (IK within limits, no collision), or -1: (B,) int.
-FirstReachable = Callable[[np.ndarray], np.ndarray]
+
+
+@dc.dataclass
+class Reach:
+    """How the robot reaches a view: IK solutions of many sensor poses (N, 4, 4) at once, best
+    first, and whether a joint configuration is collision free."""
+
+    ik: Callable[[np.ndarray], list[np.ndarray]]
+    collision_free: Callable[[np.ndarray], bool]
 
 
 @dc.dataclass
@@ -79,21 +85,22 @@ def orient(positions: np.ndarray, aims: np.ndarray) -> np.ndarray:
 
 
 def expand_tree(root: np.ndarray, n: int, sample_position: Callable[[], np.ndarray],
-                workspace: AlignedBox, roi: AlignedBox, score: Scorer,
-                first_reachable: FirstReachable, params: TreeParams,
-                steer: bool = True) -> ViewTree:
+                workspace: AlignedBox, roi: AlignedBox, score: Scorer, reach: Reach,
+                params: TreeParams, steer: bool = True) -> ViewTree:
     """Grows a tree of up to `n` candidate views from the pose `root` (4x4).
 
     Nodes are added in rounds of `params.round_size`: each node of a round steers from its
     nearest node in the tree as it stood when the round began, and the round's views share one
-    utility evaluation and one IK call (which is what makes a tree cheap in Python).
+    IK call and one utility evaluation (which is what makes a tree cheap in Python). Each node
+    keeps its view of highest utility among those with a collision-free IK solution; views
+    without any IK solution are not scored at all.
 
     Args:
         sample_position: draws the position the next node steers towards.
         workspace: where sensor positions may be.
         roi: the region of interest the views look at.
         score: gains and utilities of a batch of poses.
-        first_reachable: for each node's views, the first one the robot reaches.
+        reach: IK and collision checks of the robot.
         steer: limit edges to `params.max_edge`; without, a node is placed at the sample
             itself (ExpandRRTCached samples around cached nodes that may be far away).
     """
@@ -117,16 +124,22 @@ def expand_tree(root: np.ndarray, n: int, sample_position: Callable[[], np.ndarr
         if not keep.any():
             continue
         new, nearest = new[keep], nearest[keep]
-        poses = orient(new, aims)
-        gains, utilities = score(poses.reshape(-1, 4, 4))
-        utilities = utilities.reshape(len(new), len(aims))
-        order = np.argsort(-utilities, axis=1, kind="stable")
-        ordered = np.take_along_axis(poses, order[:, :, None, None], axis=1)
-        first = first_reachable(ordered)
-        for b in np.flatnonzero(first >= 0):
-            k = order[b, first[b]]
-            tree.poses.append(poses[b, k])
-            tree.parents.append(int(nearest[b]))
-            tree.gains.append(gains.take(b * len(aims) + k))
+        poses = orient(new, aims)  # (B, A, 4, 4)
+        solutions = reach.ik(poses.reshape(-1, 4, 4))
+        has_ik = np.array([len(q) > 0 for q in solutions])
+        if not has_ik.any():
+            continue
+        gains, scored = score(poses.reshape(-1, 4, 4)[has_ik])
+        utilities = np.full(len(has_ik), -np.inf)
+        utilities[has_ik] = scored
+        index_in_scored = np.cumsum(has_ik) - 1
+        for b in range(len(new)):
+            for k in np.argsort(-utilities[b * len(aims):(b + 1) * len(aims)], kind="stable"):
+                i = b * len(aims) + k
+                if has_ik[i] and any(reach.collision_free(q) for q in solutions[i]):
+                    tree.poses.append(poses[b, k])
+                    tree.parents.append(int(nearest[b]))
+                    tree.gains.append(gains.take(index_in_scored[i]))
+                    break
         positions = np.array([X[:3, 3] for X in tree.poses])
     return tree
