@@ -9,6 +9,7 @@ import sys
 from collections.abc import Sequence
 
 from lrnbv_drake import objects
+from lrnbv_drake.campaign import add_benchmark_command, run_benchmark
 from lrnbv_drake.episode import PLANNERS, make_meshcat, run_episode
 from lrnbv_drake.hardware.sensor_cli import add_sensor_commands, run_sensor_command
 from lrnbv_drake.scenario import Scenario, load_scenario
@@ -42,6 +43,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="serve a live Meshcat view (a replay.html is written either way)")
 
     sub.add_parser("objects", help="list the built-in objects")
+    add_benchmark_command(sub)
     add_sensor_commands(sub)
     return parser
 
@@ -63,6 +65,8 @@ def _scenario(args: argparse.Namespace) -> Scenario:
 def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     args = _parser().parse_args(argv)
+    if args.command == "benchmark":
+        return run_benchmark(args)
     if args.command == "sensor":
         return run_sensor_command(args)
     if args.command == "objects":
