@@ -308,8 +308,9 @@ def _insert_scan_kernel(grid, stamp, scan, off, dims, res, origin, points, max_r
 
 
 @numba.njit(cache=True)
-def _clip(o, u, t0, t1, bmin, bmax):
-    """Slab test: the part [t0, t1] of the ray o + t u inside the box (t0 > t1 if none)."""
+def ray_box_interval(o, u, t0, t1, bmin, bmax):
+    """Slab test: the part of [t0, t1] where the ray o + t u is inside the box (returned
+    t0 > t1 if none). A numba function, also used by the planner's gain kernel."""
     for a in range(3):
         if u[a] == 0.0:
             if o[a] < bmin[a] or o[a] > bmax[a]:
@@ -378,7 +379,7 @@ def _first_occupied_kernel(grid, lo, res, thres, origins, dirs, max_range, out_t
             continue
         for a in range(3):
             u[a] = dirs[r, a] / norm
-        t0, t1 = _clip(o, u, 0.0, max_range, gmin, gmax)
+        t0, t1 = ray_box_interval(o, u, 0.0, max_range, gmin, gmax)
         if t0 > t1:
             continue
         _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta)
@@ -413,8 +414,8 @@ def _unknown_kernel(grid, lo, res, thres, origins, ends, bmin, bmax, stop_at_occ
             continue
         for a in range(3):
             u[a] /= length
-        t0, t1 = _clip(o, u, 0.0, length, gmin, gmax)
-        b0, b1 = _clip(o, u, 0.0, length, bmin, bmax)
+        t0, t1 = ray_box_interval(o, u, 0.0, length, gmin, gmax)
+        b0, b1 = ray_box_interval(o, u, 0.0, length, bmin, bmax)
         if t0 > t1 or b0 > b1:
             continue
         _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta)

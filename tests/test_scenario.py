@@ -42,3 +42,14 @@ def test_unparsable_and_missing_files(tmp_path):
         load_scenario(filename=path)
     with pytest.raises(ScenarioError, match="cannot read"):
         load_scenario(filename=tmp_path / "missing.yaml")
+
+
+def test_the_example_scenario_loads():
+    from pathlib import Path
+
+    dut = load_scenario(filename=Path(__file__).parent.parent / "examples" / "scenario.yaml")
+    assert dut.seed == 7
+    assert (dut.object.name, dut.object.yaw_deg) == ("vertical_box", 20.0)
+    assert dut.mapping.insertion == "cone"
+    assert dut.planner.weights.density == 0.05
+    assert dut.planner.num_cached_nodes == Scenario().planner.num_cached_nodes

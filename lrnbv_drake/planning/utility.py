@@ -25,6 +25,7 @@ import numpy as np
 from scipy import ndimage
 
 from lrnbv_drake.boxes import AlignedBox
+from lrnbv_drake.mapping import ray_box_interval
 from lrnbv_drake.planning.config import GainParams, UtilityWeights
 from lrnbv_drake.sensor import ZoneGeometry
 
@@ -98,24 +99,6 @@ def sensor_rays(geometry: ZoneGeometry, rays_per_zone: int = 1) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _slab(o, d, lo, hi, t_max):
-    """Parameter interval [t0, t1] of the ray o + t d (t in [0, t_max]) inside the box."""
-    t0, t1 = 0.0, t_max
-    for a in range(3):
-        if abs(d[a]) < 1e-12:
-            if o[a] < lo[a] or o[a] > hi[a]:
-                return 1.0, 0.0
-        else:
-            ta = (lo[a] - o[a]) / d[a]
-            tb = (hi[a] - o[a]) / d[a]
-            if ta > tb:
-                ta, tb = tb, ta
-            t0 = max(t0, ta)
-            t1 = min(t1, tb)
-    return t0, t1
-
-
-@numba.njit(cache=True)
 def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state, density,
                       out_ge, out_gd):
     nx, ny, nz = state.shape
@@ -127,7 +110,7 @@ def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state
         gd = 0.0
         for r in range(rays.shape[0]):
             d = rotation @ rays[r]
-            t0, t1 = _slab(o, d, roi_lo, roi_hi, max_range)
+            t0, t1 = ray_box_interval(o, d, 0.0, max_range, roi_lo, roi_hi)
             if t1 <= t0:
                 continue
             # Samples one cell apart (t in metres: the paper's t is t / max_range), from where
