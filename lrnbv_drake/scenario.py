@@ -16,6 +16,7 @@ from pathlib import Path
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
+from lrnbv_drake.hardware.config import HardwareConfig
 from lrnbv_drake.planning.config import PlannerParams
 from lrnbv_drake.resources import package_url
 
@@ -126,8 +127,10 @@ class MappingConfig:
 class ExtractionConfig:
     """Finding the object among the occupied cells (perception.ExtractionParams)."""
 
-    # Cells below the table top plus this are the table, metres.
-    table_tolerance: float = 0.015
+    # Cells below the table top plus this are the table, metres. Two cell layers: range noise
+    # (sigma 5-7.5 mm at working range) lifts table points into the second layer, and those
+    # cells, chained by DBSCAN, would grow the object along the table with every pose.
+    table_tolerance: float = 0.025
     # DBSCAN radius (metres) and core-point neighbour count. One frame's zone points lie
     # d * tan(5.625 deg), 3-5 cm, apart at 0.3-0.5 m: the radius must bridge that.
     dbscan_eps: float = 0.05
@@ -172,6 +175,8 @@ class Scenario:
     # Hard cap on acquisitions in one episode, whatever the planner.
     max_poses: int = 40
     visualization: VisualizationConfig = dc.field(default_factory=VisualizationConfig)
+    # The real cell's drivers and safety checks (docs/hardware.md); unused in simulation.
+    hardware: HardwareConfig = dc.field(default_factory=HardwareConfig)
 
 
 def _type_name(tp: typing.Any) -> str:

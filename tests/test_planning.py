@@ -228,3 +228,23 @@ def test_cache_is_trimmed_to_m_i_best_after_reevaluation(monkeypatch):
     dut.params.num_cached_nodes, dut.params.num_iterations, dut.iteration = 6, 3, 2
     dut._update_cache(None)  # m_2 = ceil(6 * (1 - 2/3)) = 2: the two best by Ge (x = 0.7, 0.6)
     assert [round(c.X_WS[0, 3], 3) for c in dut.cache] == [0.7, 0.6]
+
+
+def test_reevaluation_drops_nodes_no_longer_above_tau(monkeypatch):
+    # Ge = x, normalised by its maximum 0.7: U = 500 x / 0.7. tau = 500 * 0.45 / 0.7 keeps
+    # x > 0.45.
+    positions = [np.array([0.1 * k, 0.0, 0.5]) for k in range(1, 8)]
+    dut = _with_cache(monkeypatch, lambda x: x[0], positions)
+    dut.params.cache_threshold = 500 * 0.45 / 0.7
+    dut._update_cache(None)
+    assert [round(c.X_WS[0, 3], 3) for c in dut.cache] == [0.7, 0.6, 0.5]
+
+
+def test_done_when_nothing_above_tau_is_left(monkeypatch):
+    # Every view, cached or new, sees nothing (all gains 0, visited 0): U = 0 <= tau = 0.
+    cached = [np.array([0.5, 0.3, 0.5])]
+    dut = _with_cache(monkeypatch, lambda x: 0.0, cached)
+    proposal = dut.propose(_observation(GridMap(), n=2))
+    assert dut.cache == []
+    assert proposal.done
+    assert "no cached node is left above tau" in proposal.reason

@@ -147,7 +147,8 @@ class LrNbvPolicy(ViewpointPolicy):
         return self.utility(Gains.concatenate([c.gains for c in self.cache]))
 
     def _update_cache(self, snapshot: PlanningSnapshot) -> float:
-        """Lines 19-21: re-evaluate, reorder and trim the cache; returns the seconds it took."""
+        """Lines 19-21: re-evaluate the cache, drop the nodes no longer above tau, keep the best
+        m_i; returns the seconds it took."""
         started = time.perf_counter()
         if self.cache:
             poses = np.array([c.X_WS for c in self.cache])
@@ -156,8 +157,10 @@ class LrNbvPolicy(ViewpointPolicy):
             self.cache = [_Cached(X, gains.take(i)) for i, X in enumerate(poses)]
             keep = cache_capacity(self.params.num_cached_nodes, self.iteration,
                                   self.params.num_iterations)
-            order = np.argsort(-self._cached_utilities(), kind="stable")[:keep]
-            self.cache = [self.cache[i] for i in order]
+            utilities = self._cached_utilities()
+            order = np.argsort(-utilities, kind="stable")[:keep]
+            self.cache = [self.cache[i] for i in order
+                          if utilities[i] > self.params.cache_threshold]
         return time.perf_counter() - started
 
     # -- the policy -----------------------------------------------------------------------
@@ -227,6 +230,10 @@ class LrNbvPolicy(ViewpointPolicy):
         if best is None:
             return Proposal(done=True, reason="no reachable view found around the ROI",
                             info=info)
+        if self.iteration > 0 and not cached_before and u_best <= self.params.cache_threshold:
+            return Proposal(done=True, info=info, reason=(
+                f"no cached node is left above tau = {self.params.cache_threshold:g} and the "
+                f"best new view's utility {u_best:.4g} is not above it either"))
         if cached_before and u_best <= worst_cached:
             return Proposal(done=True, info=info, reason=(
                 f"best utility {u_best:.4g} is not above the worst cached node's "
