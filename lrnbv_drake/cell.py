@@ -126,9 +126,9 @@ def make_cell(scenario: Scenario, meshcat: Meshcat | None = None,
         hardware: build the real cell (UR5e over RTDE, sensor over serial) instead.
     """
     if hardware:
-        raise NotImplementedError(
-            "make_cell(hardware=True): the RTDE robot and serial sensor drivers are not "
-            "implemented yet (see the hardware issue); use the simulated cell")
+        # Imported here: the hardware station builds on this module.
+        from lrnbv_drake.hardware.station import make_hardware_cell
+        return make_hardware_cell(scenario, meshcat)
 
     builder = DiagramBuilder()
     scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from lrnbv_drake import objects
 from lrnbv_drake.campaign import add_benchmark_command, run_benchmark
 from lrnbv_drake.episode import PLANNERS, make_meshcat, run_episode
+from lrnbv_drake.hardware.hardware_cli import add_hardware_commands, run_hardware_command
 from lrnbv_drake.hardware.sensor_cli import add_sensor_commands, run_sensor_command
 from lrnbv_drake.scenario import Scenario, load_scenario
 
@@ -45,6 +46,7 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("objects", help="list the built-in objects")
     add_benchmark_command(sub)
     add_sensor_commands(sub)
+    add_hardware_commands(sub)
     return parser
 
 
@@ -69,6 +71,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return run_benchmark(args)
     if args.command == "sensor":
         return run_sensor_command(args)
+    if args.command == "hardware":
+        return run_hardware_command(args)
     if args.command == "objects":
         for name in objects.PAPER_OBJECTS:
             print(f"{name:16s} {objects.BUILTIN_OBJECTS[name].description}")

@@ -7,7 +7,7 @@ from pydrake.systems.analysis import Simulator
 from lrnbv_drake.cell import make_cell
 from lrnbv_drake.motion import MotionPlanner
 from lrnbv_drake.poses import look_at
-from lrnbv_drake.scenario import HOME_POSITION, Scenario
+from lrnbv_drake.scenario import HOME_POSITION, Scenario, ScenarioError
 from lrnbv_drake.sensor import STATUS_VALID
 
 
@@ -19,8 +19,8 @@ def test_ports_have_the_stable_names():
     assert outputs == {"ur5e.position_measured", "tof.frame", "tof.pose", "query_object"}
 
 
-def test_hardware_is_not_there_yet():
-    with pytest.raises(NotImplementedError, match="hardware"):
+def test_hardware_needs_the_robot_address():
+    with pytest.raises(ScenarioError, match=r"robot\.robot_ip"):
         make_cell(Scenario(), hardware=True)
 
 

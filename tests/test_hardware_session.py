@@ -1,0 +1,283 @@
+"""Whole hardware episodes on fakes: the real RTDE driver on fake ur_rtde modules around a
+lagging arm, and the simulated sensor board behind the real serial driver (loop://).
+
+A short HEU episode (two poses, the arm starting at the first) runs to its cap; another gets a
+protective stop on the way to its second pose and is then resumed. Every wait is bounded and
+nothing asserts on how long anything took."""
+
+from __future__ import annotations
+
+import json
+
+import fake_rtde
+import numpy as np
+import pytest
+from pydrake.common.yaml import yaml_dump_typed
+
+from lrnbv_drake.cell import make_cell, place_object
+from lrnbv_drake.cli import main
+from lrnbv_drake.episode import run_episode
+from lrnbv_drake.hardware import session
+from lrnbv_drake.hardware.session import (
+    JOURNAL_FILE,
+    MAP_FILE,
+    SESSION_FILE,
+    AcquisitionJournal,
+    SessionError,
+    resume,
+    run_session,
+)
+from lrnbv_drake.hardware.tof_serial import SensorTimeout
+from lrnbv_drake.motion import MotionPlanner
+from lrnbv_drake.planning.heu import HeuParams, heu_poses
+from lrnbv_drake.scenario import HOME_POSITION, load_scenario
+
+SCENARIO = """
+max_poses: 2
+robot: {robot_ip: fake-ur5e}
+hardware: {sensor_driver: simulated}
+"""
+
+
+def _journal_lines(out) -> int:
+    path = out / JOURNAL_FILE
+    return len(path.read_text().splitlines()) if path.exists() else 0
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return load_scenario(data=SCENARIO)
+
+
+@pytest.fixture(scope="module")
+def q_first_pose(scenario):
+    """Joints at HEU's first viewpoint: the episodes start there, so only one motion remains."""
+    poses = heu_poses(place_object(scenario).mesh.bounds.mean(axis=0), HeuParams())
+    return MotionPlanner(scenario).plan(np.array(HOME_POSITION), poses[0]).q_target
+
+
+@pytest.fixture(scope="module")
+def finished(scenario, q_first_pose, tmp_path_factory):
+    """A whole episode; the arm notes how many acquisitions were on disk at every servoJ. It
+    lags its targets like servoJ with a 0.1 s lookahead, so it is still moving for a while
+    after the planner's trajectory has ended."""
+    out = tmp_path_factory.mktemp("heu")
+    arm = fake_rtde.FakeArm(q_first_pose, tau=0.1)
+    on_disk = []
+    arm.on_servo = lambda arm, q: on_disk.append((q, _journal_lines(out)))
+    questions = []
+    with pytest.MonkeyPatch.context() as mp:
+        fake_rtde.install(mp, arm)
+        result = run_session(scenario, "heu", out,
+                             confirm=lambda text: questions.append(text) or True)
+    return result, out, arm, on_disk, questions
+
+
+def test_the_episode_runs_to_its_cap_on_the_real_drivers(finished):
+    result, out, arm, _, questions = finished
+    assert result.fault is None and result.termination == "reached the cap of 2 poses"
+    assert len(questions) == 1 and "fake-ur5e" in questions[0]
+    assert [kind for kind, _ in arm.connections] == ["receive", "receive", "control"]
+    names = [c.name for c in arm.calls]
+    assert names.count("servoJ") > 10
+    assert names[-4:] == ["servoStop", "stopScript", "disconnect-control",
+                          "disconnect-receive"]
+    report = json.loads((out / "report.json").read_text())
+    assert report["fault"] is None and report["n_poses"] == 2
+    assert report["sensor_stats"]["frames"] > 2 and report["sensor_stats"]["bad_crc"] == 0
+    assert [p["info"]["ellipse_index"] for p in report["poses"]] == [0, 1]
+    frames = np.load(out / "frames.npz")
+    assert frames["q"].shape == (2, 6)
+    assert (out / MAP_FILE).stat().st_size > 0
+    runs = json.loads((out / SESSION_FILE).read_text())["runs"]
+    assert len(runs) == 1 and runs[0]["recorded_before"] == 0
+
+
+def test_every_acquisition_is_on_disk_before_the_arm_leaves_its_pose(finished):
+    result, out, _, on_disk, _ = finished
+    recorded = AcquisitionJournal(out / JOURNAL_FILE).load()
+    assert len(recorded) == 2
+    for a, logged in zip(recorded, result.log.acquisitions, strict=True):
+        np.testing.assert_array_equal(a.frame.distance_mm, logged.frame.distance_mm)
+        np.testing.assert_allclose(a.X_WS, logged.X_WS)
+    departures, held, repeats = 0, None, 0
+    for q, lines in on_disk:
+        if held is not None and np.array_equal(q, held):
+            repeats += 1
+            continue
+        # The arm leaves a pose it was parked at (the same command for at least 40 ms).
+        if repeats >= 5:
+            for k, a in enumerate(recorded):
+                if np.abs(held - a.q).max() < 1e-3:
+                    departures += 1
+                    assert lines >= k + 1, f"left acquisition {k}'s pose with {lines} on disk"
+        held, repeats = q, 0
+    assert departures == 1  # the arm left the first pose for the second, and that is all
+
+
+def test_each_frame_was_captured_with_the_arm_still_at_its_recorded_pose(finished, scenario):
+    _, out, _, _, _ = finished
+    cell = make_cell(scenario)
+    context = cell.CreateDefaultContext()
+    tof = cell.GetSubsystemByName("tof")
+    for a in AcquisitionJournal(out / JOURNAL_FILE).load():
+        cell.GetInputPort("ur5e.position").FixValue(context, a.q)
+        expected = tof.CaptureFrame(tof.GetMyContextFromRoot(context),
+                                    sequence=a.frame.sequence)
+        both = a.frame.valid & expected.valid
+        assert both.sum() >= 48
+        # Rendered from where the arm really was; a frame from a moving arm is cm off.
+        assert np.abs(a.frame.distance_mm[both].astype(int)
+                      - expected.distance_mm[both]).max() <= 2
+
+
+@pytest.fixture(scope="module")
+def stopped(scenario, q_first_pose, tmp_path_factory):
+    """An episode whose arm goes into a protective stop on its way to the second pose."""
+    out = tmp_path_factory.mktemp("stopped")
+    arm = fake_rtde.FakeArm(q_first_pose)
+    injected = []
+
+    def stop_when_moving(arm, q):
+        if not injected and _journal_lines(out) == 1 and np.abs(q - q_first_pose).max() > 0.01:
+            arm.protective_stop, arm.safety_mode = True, 3
+            injected.append(len(arm.calls))
+    arm.on_servo = stop_when_moving
+    with pytest.MonkeyPatch.context() as mp:
+        fake_rtde.install(mp, arm)
+        result = run_session(scenario, "heu", out, confirm=lambda text: True)
+    return result, out, arm, injected
+
+
+def test_a_protective_stop_stops_saves_and_explains(stopped):
+    result, out, arm, injected = stopped
+    assert injected, "the arm never left the first pose"
+    assert result.fault == "protective_stop"
+    assert "protective stop on fake-ur5e" in result.termination
+    assert "lrnbv hardware --resume" in result.termination
+    after = [c.name for c in arm.calls[injected[0]:]]
+    assert after.count("servoJ") <= 3  # the receiver sees the stop within a period or two
+    assert "servoStop" in after
+    assert _journal_lines(out) == 1
+    report = json.loads((out / "report.json").read_text())
+    assert report["fault"] == "protective_stop" and report["n_poses"] == 1
+
+
+def test_resume_continues_the_episode_from_where_the_arm_is(stopped, tmp_path):
+    _, out, old_arm, _ = stopped
+    arm = fake_rtde.FakeArm(old_arm.q)  # cleared on the pendant; the arm did not move since
+    with pytest.MonkeyPatch.context() as mp:
+        fake_rtde.install(mp, arm)
+        result = resume(out, confirm=lambda text: True)
+    assert result.fault is None and result.termination == "reached the cap of 2 poses"
+    assert result.resumed_from == 1 and result.n_poses == 2
+    recorded = AcquisitionJournal(out / JOURNAL_FILE).load()
+    assert [a.index for a in recorded] == [0, 1]
+    # HEU carries on with the next ellipse pose; diagram time carries on too.
+    assert [a.info["ellipse_index"] for a in recorded] == [0, 1]
+    assert recorded[1].time > recorded[0].time + 1.0
+    np.testing.assert_allclose(recorded[1].q, arm.q, atol=1e-3)
+    runs = json.loads((out / SESSION_FILE).read_text())["runs"]
+    assert [r["recorded_before"] for r in runs] == [0, 1]
+    np.testing.assert_allclose(runs[1]["q_start"], old_arm.q, atol=1e-9)
+
+
+def test_resume_rebuilds_lrnbv_and_does_not_capture_the_start_pose_again(tmp_path):
+    """A dry-run folder made from a simulated LR-NBV episode of two poses, resumed for one
+    more: the policy goes on at its next iteration, straight to planning."""
+    scenario = load_scenario(data="max_poses: 2")
+    recorded = run_episode(scenario, "lrnbv", tmp_path / "sim").log.acquisitions
+    out = tmp_path / "session"
+    out.mkdir()
+    journal = AcquisitionJournal(out / JOURNAL_FILE)
+    for a in recorded:
+        journal.append(a)
+    more = load_scenario(data="max_poses: 3", defaults=scenario)
+    (out / SESSION_FILE).write_text(json.dumps({
+        "planner": "lrnbv", "dry_run": True, "scenario": yaml_dump_typed(more), "runs": []}))
+
+    def never(text):
+        raise AssertionError("a dry run asked to move the robot")
+    result = resume(out, confirm=never)
+    assert result.fault is None and result.n_poses == 3 and result.resumed_from == 2
+    assert [a.info.get("iteration") for a in result.log.acquisitions] == [None, 0, 1]
+    assert result.log.acquisitions[2].time > recorded[1].time
+    assert len(AcquisitionJournal(out / JOURNAL_FILE).load()) == 3
+
+
+def test_a_dry_run_moves_nothing_and_only_reads_the_robot(scenario, q_first_pose, tmp_path,
+                                                          monkeypatch):
+    arm = fake_rtde.FakeArm(q_first_pose)
+    fake_rtde.install(monkeypatch, arm)
+    dry = load_scenario(data="max_poses: 1", defaults=scenario)
+
+    def never(text):
+        raise AssertionError("a dry run asked to move the robot")
+    result = run_session(dry, "heu", tmp_path, confirm=never, dry_run=True)
+    assert result.fault is None and result.n_poses == 1
+    assert [kind for kind, _ in arm.connections] == ["receive"]
+    assert not [c for c in arm.calls if c.name == "servoJ"]
+    np.testing.assert_allclose(result.log.acquisitions[0].q, q_first_pose, atol=1e-9)
+    assert json.loads((tmp_path / SESSION_FILE).read_text())["dry_run"]
+
+
+def test_without_confirmation_nothing_connects_for_control(scenario, q_first_pose, tmp_path,
+                                                            monkeypatch):
+    arm = fake_rtde.FakeArm(q_first_pose)
+    fake_rtde.install(monkeypatch, arm)
+    result = run_session(scenario, "heu", tmp_path, confirm=lambda text: False)
+    assert result.fault == "declined" and "nothing moved" in result.termination
+    assert [kind for kind, _ in arm.connections] == ["receive"]
+    assert not (tmp_path / SESSION_FILE).exists()
+
+
+def test_a_start_pose_in_collision_is_refused_before_anything_moves(scenario, tmp_path,
+                                                                     monkeypatch):
+    q = np.array(HOME_POSITION) + np.array([0, 1.2, 0, 0, 0, 0])  # the forearm in the table
+    arm = fake_rtde.FakeArm(q)
+    fake_rtde.install(monkeypatch, arm)
+    with pytest.raises(SessionError, match="collide with the modelled cell"):
+        run_session(scenario, "heu", tmp_path, confirm=lambda text: True)
+    assert [kind for kind, _ in arm.connections] == ["receive"]
+
+
+def test_a_silent_sensor_is_found_before_anything_moves(scenario, q_first_pose, tmp_path,
+                                                        monkeypatch):
+    arm = fake_rtde.FakeArm(q_first_pose)
+    fake_rtde.install(monkeypatch, arm)
+    monkeypatch.setattr(session, "SENSOR_CHECK_TIMEOUT", 0.3)
+    silent = load_scenario(data="hardware: {sensor_driver: serial}\n"
+                                "sensor: {serial_port: 'loop://'}", defaults=scenario)
+    with pytest.raises(SensorTimeout, match="no frame from loop://"):
+        run_session(silent, "heu", tmp_path, confirm=lambda text: True)
+    assert [kind for kind, _ in arm.connections] == ["receive"]
+
+
+def test_a_folder_with_a_session_is_not_overwritten(finished, scenario):
+    with pytest.raises(SessionError, match="--resume"):
+        run_session(scenario, "heu", finished[1], confirm=lambda text: True)
+
+
+def test_the_journal_drops_a_torn_last_line(finished, tmp_path):
+    lines = (finished[1] / JOURNAL_FILE).read_text().splitlines()
+    torn = tmp_path / JOURNAL_FILE
+    torn.write_text(lines[0] + "\n" + lines[1][: len(lines[1]) // 2])
+    assert [a.index for a in AcquisitionJournal(torn).load()] == [0]
+    torn.write_text(lines[0][:10] + "\n" + lines[1] + "\n")
+    with pytest.raises(SessionError, match="line 1"):
+        AcquisitionJournal(torn).load()
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["hardware", "--resume", "x", "--out", "y"], "drop --out"),
+    (["hardware", "--out", "y"], "--robot-ip and --sensor-port required"),
+    (["hardware"], "--out DIR is required"),
+])
+def test_the_cli_rejects_flag_combinations_it_cannot_run(argv, words, capsys):
+    assert main(argv) == 2
+    assert words in capsys.readouterr().err
+
+
+def test_the_cli_resumes_nothing_from_an_empty_folder(tmp_path, capsys):
+    assert main(["hardware", "--resume", str(tmp_path), "--yes"]) == 2
+    assert "nothing to resume" in capsys.readouterr().err

@@ -1,0 +1,175 @@
+"""The hardware cell: the simulated cell's ports, its kinematics, the frame stamper alone, the
+configuration checks, and `make_cell(hardware=True)` streaming simulated frames through the
+real serial driver. Every wait is bounded; nothing asserts on how long anything took."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import time
+
+import numpy as np
+import pytest
+from pydrake.geometry import Meshcat, MeshcatParams
+from pydrake.systems.analysis import Simulator
+
+from lrnbv_drake.cell import make_cell
+from lrnbv_drake.hardware.station import ToFFrameStamper, check_hardware_config, make_hardware_cell
+from lrnbv_drake.hardware.tof_serial import SensorTimeout, SerialToFSensor
+from lrnbv_drake.hardware.ur_rtde_driver import PlaybackRobot
+from lrnbv_drake.scenario import HOME_POSITION, Scenario, ScenarioError, load_scenario
+from lrnbv_drake.sensor import ToFFrame
+
+HOME = np.array(HOME_POSITION)
+DRY = "hardware: {robot_driver: playback, sensor_driver: simulated}"
+
+
+def _ports(diagram):
+    inputs = {diagram.get_input_port(i).get_name() for i in range(diagram.num_input_ports())}
+    outputs = {diagram.get_output_port(i).get_name() for i in range(diagram.num_output_ports())}
+    return inputs, outputs
+
+
+@pytest.fixture
+def loop_driver():
+    with SerialToFSensor("loop://") as driver:
+        yield driver
+
+
+def test_the_hardware_cell_has_the_simulated_ports_but_query_object(loop_driver):
+    scenario = Scenario()
+    dut = make_hardware_cell(scenario, robot=PlaybackRobot(HOME), sensor_driver=loop_driver)
+    sim_inputs, sim_outputs = _ports(make_cell(scenario))
+    inputs, outputs = _ports(dut)
+    assert inputs == sim_inputs == {"ur5e.position"}
+    assert outputs == sim_outputs - {"query_object"}
+    assert {"ur5e.position_measured", "tof.frame", "tof.pose"} <= outputs
+    # Built from the scenario, so the episode can read the object and the plant.
+    assert dut.models.placed_object is not None and dut.plant.num_positions() == 6
+    dut.hardware.close()  # closes nothing it was given
+    assert loop_driver.connected
+
+
+def test_tof_pose_is_the_simulated_cells_at_the_measured_joints(loop_driver):
+    scenario = Scenario()
+    q = HOME + np.array([0.3, -0.2, 0.1, 0.2, -0.1, 0.4])
+    dut = make_hardware_cell(scenario, robot=PlaybackRobot(q), sensor_driver=loop_driver,
+                             meshcat=Meshcat(MeshcatParams(host="localhost")))
+    simulator = Simulator(dut)
+    context = simulator.get_mutable_context()
+    dut.GetInputPort("ur5e.position").FixValue(context, q)
+    simulator.Initialize()
+    np.testing.assert_allclose(dut.GetOutputPort("ur5e.position_measured").Eval(context), q)
+    sim = make_cell(scenario)
+    sim_context = sim.CreateDefaultContext()
+    sim.GetInputPort("ur5e.position").FixValue(sim_context, q)
+    np.testing.assert_allclose(dut.GetOutputPort("tof.pose").Eval(context).GetAsMatrix4(),
+                               sim.GetOutputPort("tof.pose").Eval(sim_context).GetAsMatrix4(),
+                               atol=1e-12)
+
+
+def test_make_cell_hardware_streams_simulated_frames_through_the_serial_driver():
+    scenario = load_scenario(data=DRY)
+    cell = make_cell(scenario, hardware=True)
+    try:
+        simulator = Simulator(cell)
+        simulator.set_target_realtime_rate(1.0)
+        context = simulator.get_mutable_context()
+        cell.GetInputPort("ur5e.position").FixValue(context, HOME)
+        simulator.Initialize()
+        deadline = time.monotonic() + 10.0
+        frame = cell.GetOutputPort("tof.frame").Eval(context)
+        while frame.sequence == 0:
+            assert time.monotonic() < deadline, "no frame on tof.frame within 10 s"
+            simulator.AdvanceTo(context.get_time() + 0.1)
+            frame = cell.GetOutputPort("tof.frame").Eval(context)
+        # The frame is the simulated cell's at those joints, and stamped on the diagram clock.
+        sim = make_cell(scenario)
+        sim_context = sim.CreateDefaultContext()
+        sim.GetInputPort("ur5e.position").FixValue(sim_context, HOME)
+        tof = sim.GetSubsystemByName("tof")
+        expected = tof.CaptureFrame(tof.GetMyContextFromRoot(sim_context),
+                                    sequence=frame.sequence)
+        np.testing.assert_array_equal(frame.distance_mm, expected.distance_mm)
+        np.testing.assert_array_equal(frame.status, expected.status)
+        assert 0 < frame.timestamp_us <= context.get_time() * 1e6
+    finally:
+        cell.hardware.close()
+
+
+@pytest.mark.parametrize("data, field", [
+    ("{}", "robot.robot_ip"),
+    ("robot: {robot_ip: 10.0.0.5}", "sensor.serial_port"),
+    ("{robot: {speed_fraction: 0.7}, hardware: {robot_driver: playback, "
+     "sensor_driver: simulated}}", "robot.speed_fraction"),
+    ("hardware: {robot_driver: playback, sensor_driver: simulated, servo_gain: 50}",
+     "hardware.servo_gain"),
+    ("hardware: {robot_driver: ros}", "hardware.robot_driver"),
+])
+def test_configuration_errors_name_the_field(data, field):
+    with pytest.raises(ScenarioError, match=field.replace(".", r"\.")):
+        check_hardware_config(load_scenario(data=data))
+
+
+# --- ToFFrameStamper alone ------------------------------------------------------------------
+
+PERIOD, LATENCY = 0.01, 0.05
+
+
+def _frame(sequence: int, board_us: int = 123_456_789) -> ToFFrame:
+    return dc.replace(ToFFrame.empty(), sequence=sequence, timestamp_us=board_us + sequence)
+
+
+def _stamper(**kwargs):
+    dut = ToFFrameStamper(period=PERIOD, latency=LATENCY, still_speed=0.01, timeout=0.5,
+                          first_timeout=0.8, diagnose=lambda: "loop:// open, 3 frames",
+                          **kwargs)
+    simulator = Simulator(dut)
+    context = simulator.get_mutable_context()
+    dut.GetInputPort("tof_frame").FixValue(context, ToFFrame.empty())
+    dut.GetInputPort("velocity").FixValue(context, np.zeros(6))
+    simulator.Initialize()
+    return dut, simulator, context
+
+
+def test_stamper_puts_a_still_frame_on_the_diagram_clock():
+    dut, simulator, context = _stamper()
+    simulator.AdvanceTo(0.1)
+    assert dut.GetOutputPort("tof_frame").Eval(context).sequence == 0
+    dut.GetInputPort("tof_frame").FixValue(context, _frame(7))
+    simulator.AdvanceTo(0.105)
+    out = dut.GetOutputPort("tof_frame").Eval(context)
+    # Seen by the update at t = 0.1, so integrated no earlier than 0.1 - latency.
+    assert out.sequence == 7 and out.timestamp_us == round((0.1 - LATENCY) * 1e6)
+
+
+def test_stamper_holds_back_frames_the_arm_may_have_moved_during():
+    dut, simulator, context = _stamper()
+    simulator.AdvanceTo(0.1)
+    dut.GetInputPort("velocity").FixValue(context, np.r_[0.0, 0.5, 0, 0, 0, 0])
+    simulator.AdvanceTo(0.2)
+    dut.GetInputPort("velocity").FixValue(context, np.zeros(6))  # stopped at t = 0.2
+    dut.GetInputPort("tof_frame").FixValue(context, _frame(1))
+    simulator.AdvanceTo(0.215)
+    assert dut.GetOutputPort("tof_frame").Eval(context).sequence == 0  # 0.2 + latency > t
+    dut.GetInputPort("tof_frame").FixValue(context, _frame(2))
+    simulator.AdvanceTo(0.245)
+    assert dut.GetOutputPort("tof_frame").Eval(context).sequence == 0
+    dut.GetInputPort("tof_frame").FixValue(context, _frame(3))
+    simulator.AdvanceTo(0.265)
+    out = dut.GetOutputPort("tof_frame").Eval(context)
+    assert out.sequence == 3 and out.timestamp_us >= 0.2 * 1e6
+
+
+def test_stamper_stops_the_run_when_the_sensor_falls_silent():
+    dut, simulator, context = _stamper()
+    simulator.AdvanceTo(0.75)  # no frame yet, but a board may still be booting
+    dut.GetInputPort("tof_frame").FixValue(context, _frame(1))
+    simulator.AdvanceTo(1.2)
+    with pytest.raises(SensorTimeout, match=r"no new frame .* \(loop:// open, 3 frames\)"):
+        simulator.AdvanceTo(1.5)
+
+
+def test_stamper_gives_up_on_a_sensor_that_never_sends():
+    _, simulator, _ = _stamper()
+    with pytest.raises(SensorTimeout, match=r"no new frame from the ToF sensor for 0\.8 s"):
+        simulator.AdvanceTo(1.0)
