@@ -20,12 +20,11 @@ import time
 import numpy as np
 from pydrake.math import RotationMatrix
 from pydrake.multibody.inverse_kinematics import InverseKinematics
-from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.solvers import SnoptSolver, Solve
 
 from lrnbv_drake import kinematics as kin
-from lrnbv_drake.resources import add_models_package, package_url
+from lrnbv_drake.resources import make_parser, package_url
 
 POSITION_TOL = 1e-3
 ANGLE_TOL = np.deg2rad(1.0)
@@ -43,7 +42,7 @@ def _ours_ok(X: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _drake_solve(X: np.ndarray) -> tuple[float, float]:
     """(seconds, success rate) of Drake IK on targets X, seeded with HOME."""
     plant = MultibodyPlant(0.0)
-    add_models_package(Parser(plant)).AddModels(url=package_url("ur5e/ur5e.urdf"))
+    make_parser(plant).AddModels(url=package_url("ur5e/ur5e.urdf"))
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("base_link"))
     plant.Finalize()
     base, tool0 = plant.GetFrameByName("base"), plant.GetFrameByName("tool0")

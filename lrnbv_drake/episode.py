@@ -121,11 +121,12 @@ class EpisodeDiagram:
 
 
 def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = None,
-                  hardware: bool = False) -> EpisodeDiagram:
+                  hardware: bool = False, history: EpisodeLog | None = None) -> EpisodeDiagram:
     """The closed-loop diagram of an episode: cell, map, clustering and the planner.
 
     With `hardware`, the cell is the real one (`make_cell(..., hardware=True)`); everything
-    else is the same diagram.
+    else is the same diagram. `history` goes to the planner (`NbvPlanner`: an episode to carry
+    on); restoring the map and the policy to match it is the caller's part.
     """
     builder = DiagramBuilder()
     cell = builder.AddNamedSystem("cell", make_cell(scenario, meshcat, hardware=hardware))
@@ -135,7 +136,7 @@ def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = No
     loop = builder.AddNamedSystem("planner", NbvPlanner(
         policy, motion, scenario.robot.initial_position, period=period,
         frame_period=scenario.sensor.period, settle_frames=scenario.sensor.settle_frames,
-        max_poses=scenario.max_poses))
+        max_poses=scenario.max_poses, history=history))
     map_system = builder.AddNamedSystem("map", make_map_system(scenario, period))
     clustering = builder.AddNamedSystem("clustering",
                                         ObjectClustering(extraction_params(scenario)))

@@ -4,8 +4,10 @@ import numpy as np
 import pytest
 
 from lrnbv_drake.planning.heu import HeuParams, HeuPolicy, heu_poses
-from lrnbv_drake.planning.policy import Observation
+from lrnbv_drake.planning.policy import CANDIDATE_RANK, Observation
 from lrnbv_drake.poses import look_at
+from lrnbv_drake.sensor import ToFFrame
+from lrnbv_drake.systems.nbv_planner import Acquisition
 
 
 def test_look_at_points_the_optical_axis_at_the_target():
@@ -43,3 +45,24 @@ def test_policy_skips_what_the_loop_could_not_reach_and_ends():
     np.testing.assert_array_equal(second.candidates[0], dut.poses[3])
     dut.accepted(9, obs)
     assert dut.propose(obs).done
+
+
+def test_restore_goes_on_where_the_run_was():
+    """A run that skipped poses 0 and 1 and then visited 2 and 3, restored from what it
+    logged: the next proposal is the same."""
+    run = HeuPolicy(np.zeros(3))
+    obs = Observation(time=0.0, q=np.zeros(6), X_WS=np.eye(4))
+    recorded = []
+    for rank in (2, 0):
+        proposal = run.propose(obs)
+        run.accepted(rank, obs)
+        recorded.append(Acquisition(
+            index=len(recorded), time=0.0, q=np.zeros(6), X_WS=proposal.candidates[rank],
+            frame=ToFFrame.empty(), info={**proposal.candidate_info[rank], CANDIDATE_RANK: rank}))
+    assert [a.info["ellipse_index"] for a in recorded] == [2, 3]
+    restored = HeuPolicy(np.zeros(3))
+    restored.restore(recorded)
+    expected, proposal = run.propose(obs), restored.propose(obs)
+    assert len(proposal.candidates) == len(expected.candidates) == 9
+    np.testing.assert_array_equal(proposal.candidates, expected.candidates)
+    assert proposal.candidate_info == expected.candidate_info

@@ -115,3 +115,26 @@ def test_sequence_zero_means_no_frame_yet():
     dut.ExecuteForcedEvents(context)
     assert dut.occupancy_map.n_scans == 0
     assert len(dut.insert_seconds) == 0
+
+
+def test_a_frame_marked_inserted_is_not_inserted_again():
+    """A map filled directly (a resumed session's recorded frames), its last frame still on
+    the input: only a later frame goes in."""
+    dut = OccupancyMapSystem(BOUNDS, geometry=GEOMETRY, period=None)
+    context = dut.CreateDefaultContext()
+    recorded = [make_frame(sequence=6, seed=1), make_frame(sequence=7, seed=2)]
+    for frame in recorded:
+        dut.occupancy_map.insert_frame(frame, GEOMETRY, X_WS.GetAsMatrix4())
+    dut.mark_inserted(context, 7)
+    dut.GetInputPort("X_WS").FixValue(context, X_WS)
+    dut.GetInputPort("tof_frame").FixValue(context, recorded[-1])
+    dut.ExecuteForcedEvents(context)
+    assert dut.occupancy_map.n_scans == 2 and dut.insert_seconds == []
+    assert_same_map(dut.GetOutputPort("map").Eval(context), reference(recorded))
+    after = make_frame(sequence=8, seed=3)
+    dut.GetInputPort("tof_frame").FixValue(context, after)
+    dut.ExecuteForcedEvents(context)
+    assert dut.occupancy_map.n_scans == 3
+    assert_same_map(dut.occupancy_map, reference([*recorded, after]))
+    # The mark is the context's: another context of the system has not seen frame 7.
+    assert dut.CreateDefaultContext().get_abstract_state(0).get_value().last_sequence is None

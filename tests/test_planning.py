@@ -6,7 +6,7 @@ import pytest
 from lrnbv_drake.boxes import AlignedBox
 from lrnbv_drake.planning.config import GainParams, PlannerParams, UtilityWeights
 from lrnbv_drake.planning.lrnbv import LrNbvPolicy, _Cached, cache_capacity
-from lrnbv_drake.planning.policy import Observation
+from lrnbv_drake.planning.policy import CANDIDATE_RANK, Observation
 from lrnbv_drake.planning.rrt import ViewTree
 from lrnbv_drake.planning.utility import (
     Gains,
@@ -16,7 +16,8 @@ from lrnbv_drake.planning.utility import (
     make_snapshot,
 )
 from lrnbv_drake.poses import look_at
-from lrnbv_drake.sensor import ZoneGeometry
+from lrnbv_drake.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.systems.nbv_planner import Acquisition
 
 RES = 0.01
 CELL = RES**3
@@ -248,3 +249,36 @@ def test_done_when_nothing_above_tau_is_left(monkeypatch):
     assert dut.cache == []
     assert proposal.done
     assert "no cached node is left above tau" in proposal.reason
+
+
+def test_restore_puts_the_policy_where_the_run_was():
+    """An initial capture and three planned ones, as the loop makes them; a new policy
+    restored from them has the run's iteration count and visited cells, and does not mark
+    where the arm happens to be when it goes on."""
+    run = _policy()
+    X = look_at([0.2, 0.0, 0.5], [0.5, 0, 0])
+    recorded = [Acquisition(index=0, time=0.0, q=np.zeros(6), X_WS=X, frame=ToFFrame.empty())]
+    for k in range(1, 4):
+        observation = Observation(time=float(k), q=np.zeros(6), X_WS=X, occupancy=GridMap(),
+                                  n_acquisitions=k)
+        proposal = run.propose(observation)
+        assert not proposal.done
+        run.accepted(0, observation)
+        X = proposal.candidates[0]
+        recorded.append(Acquisition(index=k, time=float(k), q=np.zeros(6), X_WS=X,
+                                    frame=ToFFrame.empty(),
+                                    info={**proposal.info, CANDIDATE_RANK: 0}))
+    restored = _policy()
+    restored.restore(recorded)
+    assert restored.iteration == run.iteration == 3
+    positions = np.array([a.X_WS[:3, 3] for a in recorded])
+    assert restored.visited.visited(positions).all()
+    # The run marks its last position on its next proposal; the restored policy already has.
+    run.propose(Observation(time=4.0, q=np.zeros(6), X_WS=X, occupancy=GridMap(),
+                            n_acquisitions=4))
+    assert len(restored.visited) == len(run.visited)
+    elsewhere = look_at([0.7, 0.4, 0.3], [0.5, 0, 0])
+    assert not restored.visited.visited(elsewhere[None, :3, 3])[0]
+    restored.propose(Observation(time=5.0, q=np.zeros(6), X_WS=elsewhere, occupancy=GridMap(),
+                                 n_acquisitions=4))
+    assert not restored.visited.visited(elsewhere[None, :3, 3])[0]

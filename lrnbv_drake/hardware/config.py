@@ -47,7 +47,8 @@ class HardwareConfig:
     # (pi rad/s, pi rad/s^2); they must allow robot.speed_fraction and acceleration_fraction.
     max_speed_fraction: float = 0.6
     max_acceleration_fraction: float = 0.6
-    # A command may step this much further than the caps allow, radians: each motion starts
+    # A command may step this much further than the caps allow, radians: a motion starts from
+    # the last command when the measured joints are within 5 mrad of it (NbvPlanner), else
     # from the measured joints, which differ from the last command by the servo's residual.
     command_jump_tolerance: float = 0.002
     # Largest distance between a command and the measured joints, radians (servoJ lags a

@@ -61,12 +61,9 @@ from lrnbv_drake.hardware.ur_rtde_driver import (
     tcp_pose_error,
 )
 from lrnbv_drake.motion import MotionPlanner
-from lrnbv_drake.planning.lrnbv import LrNbvPolicy
-from lrnbv_drake.planning.policy import Observation
 from lrnbv_drake.scenario import Scenario, load_scenario
 from lrnbv_drake.sensor import ToFFrame
-from lrnbv_drake.systems.nbv_planner import Acquisition, EpisodeLog, Mode
-from lrnbv_drake.systems.occupancy_map import MapState
+from lrnbv_drake.systems.nbv_planner import Acquisition, EpisodeLog
 
 _log = logging.getLogger(__name__)
 
@@ -313,7 +310,8 @@ def _confirmation_text(scenario: Scenario, planner: str, out_dir: Path) -> str:
 
 def _restore(parts: EpisodeDiagram, scenario: Scenario, recorded: list[Acquisition],
              root_context: Context) -> None:
-    """Puts the recorded acquisitions back into a freshly built episode (see `resume`)."""
+    """Brings the map and the policy of an episode built with the recorded acquisitions as
+    its planner's history up to them (see `resume`)."""
     m = scenario.mapping
     occupancy = parts.map_system.occupancy_map
     geometry = zone_geometry(scenario)
@@ -321,26 +319,10 @@ def _restore(parts: EpisodeDiagram, scenario: Scenario, recorded: list[Acquisiti
         occupancy.insert_frame(a.frame, geometry, a.X_WS, mode=m.insertion,
                                max_range=m.max_range if m.max_range > 0 else None,
                                cone_k=m.cone_subrays, free_no_target=m.free_no_target)
-    # The map system's and the planner's only abstract state: mark the last recorded frame as
-    # inserted, and give the planner the recorded log, ready to plan.
-    map_context = parts.map_system.GetMyMutableContextFromRoot(root_context)
-    map_context.get_mutable_abstract_state(0).set_value(
-        MapState(occupancy, recorded[-1].frame.sequence))
-    n = len(recorded)
-    log = EpisodeLog(acquisitions=list(recorded), extractions=[None] * (n - 1),
-                     clustering_seconds=[0.0] * (n - 1))
-    planner_state = parts.planner.GetMyMutableContextFromRoot(root_context) \
-        .get_mutable_abstract_state(0)
-    planner_state.set_value(dc.replace(planner_state.get_value(), mode=Mode.PLAN, log=log))
-    # Replay the policy's acceptances (HEU: the next ellipse index; LR-NBV: the iteration)
-    # and the visited cells.
-    for a in recorded:
-        if "candidate_rank" in a.info:
-            parts.policy.accepted(int(a.info["candidate_rank"]), Observation(
-                time=a.time, q=a.q, X_WS=a.X_WS, n_acquisitions=a.index))
-    if isinstance(parts.policy, LrNbvPolicy):
-        for a in recorded:
-            parts.policy.visited.visit(a.X_WS[:3, 3])
+    # The planner shows the last recorded frame until its next capture: already in the map.
+    parts.map_system.mark_inserted(parts.map_system.GetMyMutableContextFromRoot(root_context),
+                                   recorded[-1].frame.sequence)
+    parts.policy.restore(recorded)
 
 
 def _write_session(out_dir: Path, scenario: Scenario, planner: str, dry_run: bool,
@@ -408,15 +390,16 @@ def resume(out_dir: str | Path, *, confirm: Confirm, meshcat: Meshcat | None = N
 
     Rebuilt from the folder: the scenario and planner (`session.json`); every recorded
     acquisition, re-inserted into a fresh map in order (the same map the run had, as the map
-    is a function of the frames and poses); the planner's log (so `max_poses` and the
-    acquisition count carry on, and the report lists every pose); the policy's progress,
-    by replaying its acceptances (HEU's next ellipse pose, LR-NBV's iteration count) and
-    LR-NBV's visited cells. Not rebuilt: LR-NBV's view cache, its sampler's random state and
-    its utility normaliser's running maxima start fresh, and the motion failures, planning
-    times and per-pose extractions of the earlier runs are not in the new log. The resumed
-    episode is therefore a faithful continuation for HEU, and for LR-NBV a valid one that an
-    uninterrupted run would not have reproduced exactly. Diagram time carries on from the
-    last recorded acquisition.
+    is a function of the frames and poses) and the last one marked as inserted
+    (`OccupancyMapSystem.mark_inserted`); the planner's log, given as its `history` (so
+    `max_poses` and the acquisition count carry on, the report lists every pose, and it
+    starts by planning); the policy's progress (`ViewpointPolicy.restore`: HEU's next
+    ellipse pose, LR-NBV's iteration count and visited cells). Not rebuilt: LR-NBV's view
+    cache, its sampler's random state and its utility normaliser's running maxima start
+    fresh, and the motion failures, planning times and per-pose extractions of the earlier
+    runs are not in the new log. The resumed episode is therefore a faithful continuation for
+    HEU, and for LR-NBV a valid one that an uninterrupted run would not have reproduced
+    exactly. Diagram time carries on from the last recorded acquisition.
 
     Args:
         out_dir: a folder `run_session` wrote.
@@ -465,7 +448,8 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
     _write_session(out_dir, scenario, planner, dry_run, q_start, len(recorded))
 
     started = time.monotonic()
-    parts = build_episode(scenario, planner, meshcat, hardware=True)
+    parts = build_episode(scenario, planner, meshcat, hardware=True,
+                          history=EpisodeLog(acquisitions=recorded) if recorded else None)
     try:
         run = _simulate(parts, scenario, recorded, out_dir)
     finally:

@@ -8,10 +8,11 @@ the robot cannot reach is skipped, and the number of skipped poses is reported.
 from __future__ import annotations
 
 import dataclasses as dc
+from collections.abc import Sequence
 
 import numpy as np
 
-from lrnbv_drake.planning.policy import Observation, Proposal, ViewpointPolicy
+from lrnbv_drake.planning.policy import Observation, Proposal, Recorded, ViewpointPolicy
 from lrnbv_drake.poses import look_at
 
 
@@ -61,3 +62,12 @@ class HeuPolicy(ViewpointPolicy):
 
     def accepted(self, index: int, observation: Observation) -> None:
         self._next += index + 1
+
+    def restore(self, acquisitions: Sequence[Recorded]) -> None:
+        """Goes on after the last ellipse pose visited: the ones before it were visited or
+        skipped as unreachable, as `accepted` would have left them. Reads the logged
+        `ellipse_index`, so it does not depend on how the candidates were ranked."""
+        visited = [int(a.info["ellipse_index"]) for a in acquisitions
+                   if "ellipse_index" in a.info]
+        if visited:
+            self._next = max(visited) + 1

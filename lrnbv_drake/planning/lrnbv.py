@@ -20,12 +20,13 @@ from __future__ import annotations
 import dataclasses as dc
 import math
 import time
+from collections.abc import Sequence
 
 import numpy as np
 
 from lrnbv_drake.boxes import AlignedBox
 from lrnbv_drake.planning.config import PlannerParams
-from lrnbv_drake.planning.policy import Observation, Proposal, ViewpointPolicy
+from lrnbv_drake.planning.policy import Observation, Proposal, Recorded, ViewpointPolicy
 from lrnbv_drake.planning.rrt import Reach, ViewTree, expand_tree
 from lrnbv_drake.planning.utility import (
     Gains,
@@ -258,3 +259,17 @@ class LrNbvPolicy(ViewpointPolicy):
 
     def accepted(self, index: int, observation: Observation) -> None:
         self.iteration += 1
+
+    def restore(self, acquisitions: Sequence[Recorded]) -> None:
+        """The iteration count (one per acquisition a proposal led to) and the visited cells
+        (every recorded position, the last included, which `propose` would mark on its next
+        call; so it does not also mark wherever the arm is when the episode goes on).
+
+        Not rebuilt: the view cache, the sampler's random state and the utility's running
+        maxima, which came from maps that no longer exist; a restored LR-NBV therefore
+        continues validly but not as the uninterrupted run would have.
+        """
+        super().restore(acquisitions)
+        for a in acquisitions:
+            self.visited.visit(a.X_WS[:3, 3])
+        self._marked = len(acquisitions)

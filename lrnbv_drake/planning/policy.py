@@ -9,9 +9,14 @@ from __future__ import annotations
 
 import abc
 import dataclasses as dc
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, Protocol
 
 import numpy as np
+
+#: The key under which the loop records, in an acquisition's info, which candidate of the
+#: proposal it moved to (absent for a capture no proposal led to, such as the initial one).
+CANDIDATE_RANK = "candidate_rank"
 
 
 @dc.dataclass
@@ -52,6 +57,17 @@ class Proposal:
     debug: dict[str, Any] = dc.field(default_factory=dict)
 
 
+class Recorded(Protocol):
+    """What `ViewpointPolicy.restore` reads of a past acquisition (`nbv_planner.Acquisition`
+    has it): its number, capture time, joints, sensor pose (4x4) and the logged info."""
+
+    index: int
+    time: float
+    q: np.ndarray
+    X_WS: np.ndarray
+    info: dict[str, Any]
+
+
 class ViewpointPolicy(abc.ABC):
     """Chooses where the sensor looks next."""
 
@@ -66,3 +82,17 @@ class ViewpointPolicy(abc.ABC):
 
     def accepted(self, index: int, observation: Observation) -> None:  # noqa: B027
         """Called when the loop moves to `candidates[index]` of the last proposal."""
+
+    def restore(self, acquisitions: Sequence[Recorded]) -> None:
+        """Puts a new policy where it would be had it made `acquisitions` itself, ready for its
+        next proposal: used to resume a recorded episode. Call it once, before `propose`.
+
+        The default replays `accepted` for every acquisition a proposal led to, which restores
+        a policy whose progress lives in `accepted`. The loop's observation at that moment is
+        not recorded, so each replay gets one rebuilt from the acquisition itself. A policy
+        that also learns in `propose` overrides this.
+        """
+        for a in acquisitions:
+            if CANDIDATE_RANK in a.info:
+                self.accepted(int(a.info[CANDIDATE_RANK]), Observation(
+                    time=a.time, q=a.q, X_WS=a.X_WS, n_acquisitions=a.index))

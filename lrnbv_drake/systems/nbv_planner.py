@@ -9,7 +9,9 @@ A state machine stepped by a periodic unrestricted update:
             wait two periods so the map and the clustering have taken it in, then PLAN again
 
 The episode ends (the update returns ReachedTermination) when the policy is done, when
-`max_poses` frames have been captured, or when no proposed viewpoint can be reached.
+`max_poses` frames have been captured, or when no proposed viewpoint can be reached. Given a
+`history` (the acquisitions of an interrupted episode), it carries on from there: it starts by
+planning, and `max_poses` counts those acquisitions.
 
 The policy and the motion planner are held by the system, not the context: the policy keeps
 planner memory (cached nodes, visited cells) across steps, as the algorithm requires. The
@@ -32,8 +34,12 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.trajectories import PiecewisePolynomial
 
 from lrnbv_drake.motion import MotionPlanner
-from lrnbv_drake.planning.policy import Observation, ViewpointPolicy
+from lrnbv_drake.planning.policy import CANDIDATE_RANK, Observation, ViewpointPolicy
 from lrnbv_drake.sensor import ToFFrame
+
+#: A motion starts from the last command, not from the measured joints, when no joint is
+#: further apart than this, radians (see `_motion_start`).
+HOLD_TOLERANCE = 0.005
 
 
 class Mode(enum.Enum):
@@ -76,6 +82,39 @@ class EpisodeLog:
         return self
 
 
+def _carried_on(history: EpisodeLog) -> EpisodeLog:
+    """A new log that starts with `history` (its lists copied: the planner appends to them).
+
+    Extractions are index-aligned with acquisitions and the planner logs the one after an
+    acquisition when it next plans, so the history's are padded with None up to the one
+    before its last acquisition; its termination is cleared, since the episode goes on.
+    """
+    aligned = len(history.acquisitions) - 1
+    return dc.replace(
+        history, acquisitions=list(history.acquisitions),
+        extractions=history.extractions + [None] * (aligned - len(history.extractions)),
+        clustering_seconds=(history.clustering_seconds
+                            + [0.0] * (aligned - len(history.clustering_seconds))),
+        motion_failures=list(history.motion_failures),
+        policy_seconds=list(history.policy_seconds),
+        motion_seconds=list(history.motion_seconds), termination="")
+
+
+def _motion_start(hold: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """Where the next trajectory starts: the last command when the arm is within
+    HOLD_TOLERANCE of it on every joint, else the measured joints.
+
+    A real servo comes to rest a little off its target, so the measured joints differ from the
+    command held at rest. A trajectory from the measured joints would make its first command
+    jump by that residual (refused by the hardware sender beyond its jump tolerance); one from
+    the held command goes on from it smoothly and the servo takes up the residual. Further
+    apart, the arm is not where the last command put it (pushed, or still moving), and the
+    motion must start from where it is. In simulation the measured joints are the command, so
+    this changes nothing there.
+    """
+    return hold if np.abs(measured - hold).max() <= HOLD_TOLERANCE else measured
+
+
 @dc.dataclass
 class _State:
     mode: Mode = Mode.PLAN
@@ -98,11 +137,20 @@ class NbvPlanner(LeafSystem):
     Output ports: `position_command` (6), `acquired_frame` (ToFFrame), `acquired_pose`
     (RigidTransform), `log` (EpisodeLog), `plan` (dict: the accepted proposal's drawable data,
     its `step` number and the chosen `X_WS`).
+
+    `history`, when it holds acquisitions, is an episode to carry on: the planner starts in
+    PLAN (no capture at the start pose), its log is a copy of `history` (so the count towards
+    `max_poses`, the indices and the report go on), and `acquired_frame` / `acquired_pose`
+    show the last recorded acquisition until the next one. Extractions missing from it are
+    logged as None, except the one after the last acquisition, which the first plan takes.
+    The policy and the map are the caller's to restore (`ViewpointPolicy.restore`,
+    `OccupancyMapSystem.mark_inserted`).
     """
 
     def __init__(self, policy: ViewpointPolicy, motion: MotionPlanner, q_initial: np.ndarray,
                  *, period: float, frame_period: float, settle_frames: int = 1,
-                 max_poses: int = 50, max_failed_proposals: int = 5):
+                 max_poses: int = 50, max_failed_proposals: int = 5,
+                 history: EpisodeLog | None = None):
         super().__init__()
         self._policy = policy
         self._motion = motion
@@ -121,8 +169,11 @@ class NbvPlanner(LeafSystem):
         self._map_port = self.DeclareAbstractInputPort("map", AbstractValue.Make(None))
         self._object_port = self.DeclareAbstractInputPort("object", AbstractValue.Make(None))
 
-        initial = _State(hold=q_initial, log=EpisodeLog(),
-                         mode=Mode.SETTLE if policy.capture_initial else Mode.PLAN)
+        if history is not None and history.acquisitions:
+            initial = _State(hold=q_initial, log=_carried_on(history), mode=Mode.PLAN)
+        else:
+            initial = _State(hold=q_initial, log=EpisodeLog(),
+                             mode=Mode.SETTLE if policy.capture_initial else Mode.PLAN)
         self._state_index = self.DeclareAbstractState(AbstractValue.Make(initial))
         state_ticket = {self.abstract_state_ticket(self._state_index)}
         self.DeclareVectorOutputPort("position_command", 6, self._CalcCommand,
@@ -236,13 +287,14 @@ class NbvPlanner(LeafSystem):
             return
         started = time.perf_counter()
         failures = []
+        q_start = _motion_start(s.hold, observation.q)
         for i, X_WS in enumerate(proposal.candidates):
-            plan = self._motion.plan(observation.q, X_WS, start_time=context.get_time())
+            plan = self._motion.plan(q_start, X_WS, start_time=context.get_time())
             if plan.ok:
                 self._policy.accepted(i, observation)
                 s.trajectory, s.mode = plan.trajectory, Mode.MOVE
                 per_candidate = proposal.candidate_info[i] if proposal.candidate_info else {}
-                s.pending_info = {**proposal.info, **per_candidate, "candidate_rank": i}
+                s.pending_info = {**proposal.info, **per_candidate, CANDIDATE_RANK: i}
                 s.plan = {**proposal.debug, "step": len(s.log.policy_seconds),
                           "X_WS": np.asarray(X_WS)}
                 break

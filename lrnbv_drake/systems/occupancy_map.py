@@ -114,6 +114,18 @@ class OccupancyMapSystem(LeafSystem):
         """The map every Context of this system shares."""
         return self._map
 
+    def mark_inserted(self, context: Context, sequence: int) -> None:
+        """Records in this system's `context` that the frame numbered `sequence` is already in
+        the map, so the update ignores it while it stays on the input.
+
+        For a map filled directly: e.g. a resumed session inserts its recorded frames into
+        `occupancy_map` itself, and the last of them is still on the planner's output. Like
+        any frame, a later one with another sequence is inserted.
+        """
+        self.ValidateContext(context)
+        context.get_mutable_abstract_state(self._state_index).set_value(
+            MapState(self._map, sequence))
+
     @property
     def insert_seconds(self) -> list[float]:
         """Wall-clock seconds each frame insertion took, in order (for run reports; like the
