@@ -77,6 +77,9 @@ class EpisodeLog:
     policy_seconds: list[float] = dc.field(default_factory=list)
     motion_seconds: list[float] = dc.field(default_factory=list)
     termination: str = ""
+    # The last accepted proposal's drawable data (tree, cache, ROI), with its "step" number and
+    # the chosen "X_WS". Kept here, not in the copied state: its arrays are large.
+    plan: dict[str, Any] = dc.field(default_factory=dict)
 
     def __deepcopy__(self, memo: dict) -> EpisodeLog:
         return self
@@ -124,8 +127,6 @@ class _State:
     t_ready: float = 0.0
     pending_info: dict[str, Any] = dc.field(default_factory=dict)
     failed_in_a_row: int = 0
-    # The accepted proposal's drawable data, with "step" and the chosen "X_WS" added.
-    plan: dict[str, Any] = dc.field(default_factory=dict)
     log: EpisodeLog = dc.field(default_factory=EpisodeLog)
 
 
@@ -217,7 +218,7 @@ class NbvPlanner(LeafSystem):
         output.set_value(self._state(context).log)
 
     def _CalcPlan(self, context, output) -> None:
-        output.set_value(self._state(context).plan)
+        output.set_value(self._state(context).log.plan)
 
     # The state machine -------------------------------------------------------------------
 
@@ -295,7 +296,7 @@ class NbvPlanner(LeafSystem):
                 s.trajectory, s.mode = plan.trajectory, Mode.MOVE
                 per_candidate = proposal.candidate_info[i] if proposal.candidate_info else {}
                 s.pending_info = {**proposal.info, **per_candidate, CANDIDATE_RANK: i}
-                s.plan = {**proposal.debug, "step": len(s.log.policy_seconds),
+                s.log.plan = {**proposal.debug, "step": len(s.log.policy_seconds),
                           "X_WS": np.asarray(X_WS)}
                 break
             failures.append((context.get_time(), np.asarray(X_WS), plan.failure.value,
