@@ -41,7 +41,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", required=True, help="output folder")
     run.add_argument("--scenario", help="scenario YAML file; the flags above override it")
     run.add_argument("--meshcat", action="store_true",
-                     help="serve a live Meshcat view (a replay.html is written either way)")
+                     help="serve a live Meshcat view and play the episode in real time (a "
+                          "replay.html is written either way)")
 
     sub.add_parser("objects", help="list the built-in objects")
     add_benchmark_command(sub)
@@ -90,7 +91,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     meshcat = make_meshcat(live=args.meshcat)
     if args.meshcat and meshcat is not None:
         print(f"Meshcat: {meshcat.web_url()}")
-    result = run_episode(scenario, args.planner, args.out, meshcat)
+    result = run_episode(scenario, args.planner, args.out, meshcat,
+                         realtime_rate=1.0 if args.meshcat else 0.0)
     report = result.report
     m = report["metrics"]
     print(f"{report['planner']} on {report['object']} (seed {report['seed']}): "
@@ -107,6 +109,8 @@ def main(argv: Sequence[str] | None = None) -> int:
           f"{100 * m['coverage']['0.02']:.1f} % within 2 cm")
     print(f"wall {result.wall_seconds:.1f} s; wrote {result.out_dir}/frames.npz, report.json"
           + (", replay.html" if meshcat is not None else ""))
+    if args.meshcat and meshcat is not None and sys.stdin.isatty():
+        input(f"Meshcat stays up at {meshcat.web_url()}; press Enter to exit. ")
     return 0
 
 

@@ -249,13 +249,18 @@ def save_frames(path: Path, episode_log: EpisodeLog) -> None:
 
 
 def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
-                meshcat: Meshcat | None = None) -> EpisodeResult:
-    """Runs one episode and writes frames.npz, report.json and (with Meshcat) replay.html."""
+                meshcat: Meshcat | None = None, realtime_rate: float = 0.0) -> EpisodeResult:
+    """Runs one episode and writes frames.npz, report.json and (with Meshcat) replay.html.
+
+    `realtime_rate` 1.0 plays the episode at the speed of the real arm (to watch it live);
+    0 runs as fast as it computes.
+    """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     parts = build_episode(scenario, planner, meshcat)
     simulator = Simulator(parts.diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
     visualizer = parts.cell.visualizer
     if visualizer is not None:
         # Look at the object area from the front-left, a little above the table.
