@@ -47,8 +47,8 @@ from lrnbv_drake.sensor import NoiseModel, SensorModelParams, ZoneGeometry
 from lrnbv_drake.systems.sensor_pose import SensorPose
 from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer
 
-__all__ = ["CellModels", "Scenario", "add_cell_models", "fixed_pose", "load_scenario", "make_cell",
-           "place_object", "sensor_params", "zone_geometry"]
+__all__ = ["CellModels", "Scenario", "add_cell_models", "add_cell_plant", "fixed_pose",
+           "load_scenario", "make_cell", "place_object", "sensor_params", "zone_geometry"]
 
 OBJECT_RGBA = np.array([0.85, 0.55, 0.2, 1.0])
 
@@ -116,6 +116,23 @@ def zone_geometry(scenario: Scenario) -> ZoneGeometry:
                         flip_y=s.flip_y, transpose=s.transpose)
 
 
+def add_cell_plant(builder: DiagramBuilder, scenario: Scenario
+                   ) -> tuple[MultibodyPlant, SceneGraph, CellModels]:
+    """Adds a SceneGraph to `builder` and makes the cell's finalized plant, registered with it
+    but not added to the builder: nothing integrates it, positions are fed to SceneGraph."""
+    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
+    plant = MultibodyPlant(time_step=0.0)
+    plant.set_name("plant")
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    models = add_cell_models(plant, scenario)
+    plant.Finalize()
+    if plant.num_positions() != 6:
+        raise ScenarioError(
+            f"field 'cell.directives': expected the UR5e's 6 joints to be the only positions, "
+            f"got {plant.num_positions()}")
+    return plant, scene_graph, models
+
+
 def make_cell(scenario: Scenario, meshcat: Meshcat | None = None,
               hardware: bool = False) -> Diagram:
     """Builds the cell diagram (see the module docstring for its ports).
@@ -131,16 +148,7 @@ def make_cell(scenario: Scenario, meshcat: Meshcat | None = None,
         return make_hardware_cell(scenario, meshcat)
 
     builder = DiagramBuilder()
-    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
-    plant = MultibodyPlant(time_step=0.0)
-    plant.set_name("plant")
-    plant.RegisterAsSourceForSceneGraph(scene_graph)
-    models = add_cell_models(plant, scenario)
-    plant.Finalize()
-    if plant.num_positions() != 6:
-        raise ScenarioError(
-            f"field 'cell.directives': expected the UR5e's 6 joints to be the only positions, "
-            f"got {plant.num_positions()}")
+    plant, scene_graph, models = add_cell_plant(builder, scenario)
 
     command = builder.AddNamedSystem("ur5e_position", PassThrough(6))
     to_pose = builder.AddNamedSystem("to_geometry_pose", MultibodyPositionToGeometryPose(plant))

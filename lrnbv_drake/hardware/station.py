@@ -33,7 +33,7 @@ from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSyst
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from lrnbv_drake import kinematics
-from lrnbv_drake.cell import add_cell_models, fixed_pose
+from lrnbv_drake.cell import add_cell_plant, fixed_pose
 from lrnbv_drake.hardware.config import ROBOT_DRIVERS, SENSOR_DRIVERS
 from lrnbv_drake.hardware.simulated_board import SimulatedToFBoard
 from lrnbv_drake.hardware.tof_serial import SensorTimeout, SerialToFSensor, SerialToFSensorSystem
@@ -278,16 +278,7 @@ def make_hardware_cell(scenario: Scenario, meshcat: Meshcat | None = None,
     """
     check_hardware_config(scenario, addresses=False)
     builder = DiagramBuilder()
-    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
-    plant = MultibodyPlant(time_step=0.0)
-    plant.set_name("plant")
-    plant.RegisterAsSourceForSceneGraph(scene_graph)
-    models = add_cell_models(plant, scenario)
-    plant.Finalize()
-    if plant.num_positions() != 6:
-        raise ScenarioError(
-            f"field 'cell.directives': expected the UR5e's 6 joints to be the only positions, "
-            f"got {plant.num_positions()}")
+    plant, scene_graph, models = add_cell_plant(builder, scenario)
 
     to_close: list[Callable[[], None]] = []
     try:
