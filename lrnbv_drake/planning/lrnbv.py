@@ -120,29 +120,33 @@ class LrNbvPolicy(ViewpointPolicy):
     def _random_position(self) -> np.ndarray:
         return self.rng.uniform(self.workspace.lower, self.workspace.upper)
 
-    def _cached_sampler(self, utilities: np.ndarray):
-        """Positions around the cached nodes, the most promising first (ExpandRRTCached)."""
-        order = np.argsort(-utilities, kind="stable")
+    def _cached_sampler(self, promising: list[_Cached]):
+        """Positions around the promising cached nodes, best first, in turn (ExpandRRTCached)."""
         spread = self.params.cached_sample_spread
         draws = iter(range(10**9))
 
         def sample() -> np.ndarray:
-            node = self.cache[order[next(draws) % len(order)]]
+            node = promising[next(draws) % len(promising)]
             return node.X_WS[:3, 3] + self.rng.normal(0.0, spread, 3)
         return sample
 
-    def _grow(self, root: np.ndarray, sampler, snapshot: PlanningSnapshot, roi: AlignedBox,
-              steer: bool = True) -> tuple[ViewTree, np.ndarray, list[int]]:
-        tree = expand_tree(root, self.params.samples_per_iteration, sampler, self.workspace,
-                           roi, self._scorer(snapshot), self._reach, self.params.tree, steer)
+    def _grow(self, tree: ViewTree | np.ndarray, n: int, sampler, snapshot: PlanningSnapshot,
+              roi: AlignedBox, steer: bool = True) -> tuple[ViewTree, np.ndarray, list[int]]:
+        tree = expand_tree(tree, n, sampler, self.workspace, roi, self._scorer(snapshot),
+                           self._reach, self.params.tree, steer)
         utilities = self.utility(tree.candidate_gains())
         return tree, utilities, tree.best_branch(utilities)
 
-    def _cache_off_branch(self, tree: ViewTree, utilities: np.ndarray, branch: list[int]) -> None:
+    def _cache_off_branch(self, tree: ViewTree, utilities: np.ndarray, branch: list[int],
+                          cached: set[int]) -> None:
+        """Lines 8 and 12: caches the tree's nodes off the best branch above tau, once each
+        (`cached` holds the indices already cached and is updated)."""
         on_branch = set(branch)
         for i in range(1, len(tree.poses)):
-            if i not in on_branch and utilities[i - 1] > self.params.cache_threshold:
+            if i not in on_branch and i not in cached and \
+                    utilities[i - 1] > self.params.cache_threshold:
                 self.cache.append(_Cached(tree.poses[i], tree.gains[i]))
+                cached.add(i)
 
     def _cached_utilities(self) -> np.ndarray:
         return self.utility(Gains.concatenate([c.gains for c in self.cache]))
@@ -194,18 +198,24 @@ class LrNbvPolicy(ViewpointPolicy):
             return best, float(utilities[best - 1])
 
         started = time.perf_counter()
-        tree, utilities, branch = self._grow(observation.X_WS, self._random_position, snapshot,
-                                             roi)
-        self._cache_off_branch(tree, utilities, branch)
+        n = self.params.samples_per_iteration
+        tree, utilities, branch = self._grow(observation.X_WS, n, self._random_position,
+                                             snapshot, roi)
+        cached_nodes: set[int] = set()
+        self._cache_off_branch(tree, utilities, branch, cached_nodes)
         best, u_best = best_node(tree, branch)
         used_cached_tree = False
         if cached_before and u_best < cached_utilities().max():
-            cached_tree, cached_u, cached_branch = self._grow(
-                observation.X_WS, self._cached_sampler(cached_utilities()), snapshot, roi,
-                steer=False)
-            self._cache_off_branch(cached_tree, cached_u, cached_branch)
-            if cached_branch:
-                tree, branch, used_cached_tree = cached_tree, cached_branch, True
+            # Line 11: expand this tree from the cached nodes better than its best node.
+            u_cached = cached_utilities()
+            promising = [cached_before[i] for i in np.argsort(-u_cached, kind="stable")
+                         if u_cached[i] > u_best][:n]
+            size = tree.size
+            tree, utilities, branch = self._grow(tree, len(promising),
+                                                 self._cached_sampler(promising), snapshot,
+                                                 roi, steer=False)
+            self._cache_off_branch(tree, utilities, branch, cached_nodes)
+            used_cached_tree = tree.size > size
         best, u_best = best_node(tree, branch)
         utilities = self.utility(tree.candidate_gains())
         expansion_s = time.perf_counter() - started

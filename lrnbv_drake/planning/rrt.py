@@ -84,10 +84,11 @@ def orient(positions: np.ndarray, aims: np.ndarray) -> np.ndarray:
     return look_at_batch(eyes, np.tile(aims, (B, 1))).reshape(B, A, 4, 4)
 
 
-def expand_tree(root: np.ndarray, n: int, sample_position: Callable[[], np.ndarray],
+def expand_tree(tree: ViewTree | np.ndarray, n: int, sample_position: Callable[[], np.ndarray],
                 workspace: AlignedBox, roi: AlignedBox, score: Scorer, reach: Reach,
                 params: TreeParams, steer: bool = True) -> ViewTree:
-    """Grows a tree of up to `n` candidate views from the pose `root` (4x4).
+    """Adds up to `n` candidate views to `tree`, or to a new tree rooted at the pose `tree`
+    (4x4), and returns the tree.
 
     Nodes are added in rounds of `params.round_size`: each node of a round steers from its
     nearest node in the tree as it stood when the round began, and the round's views share one
@@ -104,14 +105,16 @@ def expand_tree(root: np.ndarray, n: int, sample_position: Callable[[], np.ndarr
         steer: limit edges to `params.max_edge`; without, a node is placed at the sample
             itself (ExpandRRTCached samples around cached nodes that may be far away).
     """
-    tree = ViewTree(poses=[np.asarray(root, float)], parents=[-1],
-                    gains=[Gains(*(np.zeros(1) for _ in range(4)))])
+    if not isinstance(tree, ViewTree):
+        tree = ViewTree(poses=[np.asarray(tree, float)], parents=[-1],
+                        gains=[Gains(*(np.zeros(1) for _ in range(4)))])
+    wanted = tree.size + n
     keep_out = roi.inflate(params.roi_clearance)
     aims = aim_points(roi, params.aim_offset_fraction)
-    positions = np.asarray(tree.poses[0][:3, 3])[None]
+    positions = np.array([X[:3, 3] for X in tree.poses])
     attempts = n * params.max_attempts_per_node
-    while tree.size < n and attempts > 0:
-        batch = min(params.round_size, n - tree.size, attempts)
+    while tree.size < wanted and attempts > 0:
+        batch = min(params.round_size, wanted - tree.size, attempts)
         attempts -= batch
         targets = np.array([sample_position() for _ in range(batch)])
         distances = np.linalg.norm(targets[:, None] - positions[None], axis=2)
