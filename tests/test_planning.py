@@ -212,6 +212,9 @@ def test_expands_around_cached_nodes_when_the_new_tree_is_worse(monkeypatch):
     assert proposal.info["worst_cached_utility"] == pytest.approx(25.0)
     assert proposal.candidates[0][0, 3] > 0.85  # the chosen view is near the best cached node
     assert proposal.info["utility"] == pytest.approx(500.0)
+    # The line-7 tree was expanded, not replaced: its 10 views plus one sample around the only
+    # cached node that beats its best (the mediocre one does not).
+    assert dut.last_tree.size == dut.params.samples_per_iteration + 1
 
 
 def test_no_cached_expansion_when_the_new_tree_is_good_enough(monkeypatch):
