@@ -23,7 +23,7 @@ from pydrake.trajectories import PiecewisePolynomial
 from lrnbv_drake import kinematics
 from lrnbv_drake.cell import add_cell_models, fixed_pose
 from lrnbv_drake.resources import make_robot_diagram_builder
-from lrnbv_drake.scenario import HOME_POSITION, Scenario
+from lrnbv_drake.scenario import Scenario
 
 #: Model instances that move with the arm (the sensor mount is welded to tool0).
 ROBOT_MODEL_NAMES = ("ur5e", "tof_mount")
@@ -121,7 +121,7 @@ class MotionPlanner:
         self.max_velocity = kinematics.VELOCITY_LIMIT * scenario.robot.speed_fraction
         self.max_acceleration = kinematics.ACCELERATION_LIMIT * \
             scenario.robot.acceleration_fraction
-        self.home = np.asarray(HOME_POSITION)
+        self.home = kinematics.HOME.copy()
 
     def sensor_pose(self, q: np.ndarray) -> np.ndarray:
         """X_WS (4x4) for joint positions q, from the analytic forward kinematics."""

@@ -17,12 +17,9 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from lrnbv_drake.hardware.config import HardwareConfig
+from lrnbv_drake.kinematics import HOME
 from lrnbv_drake.planning.config import PlannerParams
 from lrnbv_drake.resources import package_url
-
-#: The UR5e's usual "home": arm up, tool pointing down.
-HOME_POSITION = [0.0, -1.5707963267948966, 1.5707963267948966, -1.5707963267948966,
-                 -1.5707963267948966, 0.0]
 
 
 class ScenarioError(ValueError):
@@ -34,7 +31,7 @@ class RobotConfig:
     """The UR5e and how fast planned motions may move it."""
 
     # Joint configuration at the start of an episode, radians.
-    initial_position: list[float] = dc.field(default_factory=lambda: list(HOME_POSITION))
+    initial_position: list[float] = dc.field(default_factory=lambda: HOME.tolist())
     # Fraction of the joint velocity limits (pi rad/s) used by planned motions.
     speed_fraction: float = 0.5
     # Fraction of the joint acceleration limits (pi rad/s^2) used by planned motions.

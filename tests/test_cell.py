@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
+from lrnbv_drake import kinematics
 from lrnbv_drake.cell import make_cell
 from lrnbv_drake.motion import MotionPlanner
 from lrnbv_drake.poses import look_at
-from lrnbv_drake.scenario import HOME_POSITION, Scenario, ScenarioError
+from lrnbv_drake.scenario import Scenario, ScenarioError
 from lrnbv_drake.sensor import STATUS_VALID
 
 
@@ -29,7 +30,7 @@ def test_sensor_looking_down_sees_the_box_top():
     # The horizontal box (0.12 m tall) rests at (0.5, 0): from 0.40 m above the table, looking
     # straight down, the centre zones see its top 0.28 m away.
     target = look_at([0.5, 0.0, 0.40], [0.5, 0.0, 0.0])
-    q = MotionPlanner(scenario).ik(target, np.array(HOME_POSITION))[0]
+    q = MotionPlanner(scenario).ik(target, kinematics.HOME.copy())[0]
     dut = make_cell(scenario)
     simulator = Simulator(dut)
     context = simulator.get_mutable_context()

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_dump_typed
 
+from lrnbv_drake import kinematics
 from lrnbv_drake.cell import make_cell, place_object
 from lrnbv_drake.cli import main
 from lrnbv_drake.episode import run_episode
@@ -30,7 +31,7 @@ from lrnbv_drake.hardware.session import (
 from lrnbv_drake.hardware.tof_serial import SensorTimeout
 from lrnbv_drake.motion import MotionPlanner
 from lrnbv_drake.planning.heu import HeuParams, heu_poses
-from lrnbv_drake.scenario import HOME_POSITION, load_scenario
+from lrnbv_drake.scenario import load_scenario
 
 SCENARIO = """
 max_poses: 2
@@ -53,7 +54,7 @@ def scenario():
 def q_first_pose(scenario):
     """Joints at HEU's first viewpoint: the episodes start there, so only one motion remains."""
     poses = heu_poses(place_object(scenario).mesh.bounds.mean(axis=0), HeuParams())
-    return MotionPlanner(scenario).plan(np.array(HOME_POSITION), poses[0]).q_target
+    return MotionPlanner(scenario).plan(kinematics.HOME.copy(), poses[0]).q_target
 
 
 @pytest.fixture(scope="module")
@@ -233,7 +234,7 @@ def test_without_confirmation_nothing_connects_for_control(scenario, q_first_pos
 
 def test_a_start_pose_in_collision_is_refused_before_anything_moves(scenario, tmp_path,
                                                                      monkeypatch):
-    q = np.array(HOME_POSITION) + np.array([0, 1.2, 0, 0, 0, 0])  # the forearm in the table
+    q = kinematics.HOME.copy() + np.array([0, 1.2, 0, 0, 0, 0])  # the forearm in the table
     arm = fake_rtde.FakeArm(q)
     fake_rtde.install(monkeypatch, arm)
     with pytest.raises(SessionError, match="collide with the modelled cell"):

@@ -12,14 +12,15 @@ import pytest
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import Simulator
 
+from lrnbv_drake import kinematics
 from lrnbv_drake.cell import make_cell
 from lrnbv_drake.hardware.station import ToFFrameStamper, check_hardware_config, make_hardware_cell
 from lrnbv_drake.hardware.tof_serial import SensorTimeout, SerialToFSensor
 from lrnbv_drake.hardware.ur_rtde_driver import PlaybackRobot
-from lrnbv_drake.scenario import HOME_POSITION, Scenario, ScenarioError, load_scenario
+from lrnbv_drake.scenario import Scenario, ScenarioError, load_scenario
 from lrnbv_drake.sensor import ToFFrame
 
-HOME = np.array(HOME_POSITION)
+HOME = kinematics.HOME.copy()
 DRY = "hardware: {robot_driver: playback, sensor_driver: simulated}"
 
 

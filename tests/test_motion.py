@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
+from lrnbv_drake import kinematics
 from lrnbv_drake.motion import MotionFailure, MotionPlanner, trapezoidal_trajectory
 from lrnbv_drake.poses import look_at
-from lrnbv_drake.scenario import HOME_POSITION, Scenario
+from lrnbv_drake.scenario import Scenario
 
 
 def _sample(traj, n=2001):
@@ -54,7 +55,7 @@ def planner():
 
 def test_plan_reaches_the_pose_without_collision(planner):
     target = look_at([0.35, 0.10, 0.40], [0.5, 0.0, 0.05])
-    plan = planner.plan(np.array(HOME_POSITION), target)
+    plan = planner.plan(kinematics.HOME.copy(), target)
     assert plan.ok, plan.reason
     np.testing.assert_allclose(planner.sensor_pose(plan.q_target), target, atol=1e-9)
     traj = plan.trajectory
@@ -70,7 +71,7 @@ def test_plan_reaches_the_pose_without_collision(planner):
 ])
 def test_failures_are_typed_and_explained(planner, position, failure):
     target = look_at(position, np.add(position, [0.0, 0.0, -1.0]))
-    plan = planner.plan(np.array(HOME_POSITION), target)
+    plan = planner.plan(kinematics.HOME.copy(), target)
     assert plan.failure is failure
     assert plan.trajectory is None
     assert plan.reason

@@ -29,9 +29,8 @@ from lrnbv_drake.hardware.ur_rtde_driver import (
     tcp_pose_error,
 )
 from lrnbv_drake.motion import trapezoidal_trajectory
-from lrnbv_drake.scenario import HOME_POSITION
 
-HOME = np.array(HOME_POSITION)
+HOME = kinematics.HOME.copy()
 PERIOD = 0.008
 # tool0 -> sensor and world -> base of the shipped cell are not needed to test the joint
 # checks: identity frames and a box that holds every reachable sensor position.
