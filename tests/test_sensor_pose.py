@@ -1,18 +1,16 @@
 """SensorPose alone, against the analytic kinematics and the mount offset worked by hand."""
 
 import numpy as np
-from pydrake.multibody.plant import MultibodyPlant
+from pydrake.systems.framework import DiagramBuilder
 
 from lrnbv_drake import kinematics
-from lrnbv_drake.cell import add_cell_models
+from lrnbv_drake.cell import add_cell_plant
 from lrnbv_drake.scenario import Scenario
 from lrnbv_drake.systems.sensor_pose import SensorPose
 
 
 def test_sensor_pose_is_base_fk_and_the_mount_offset():
-    plant = MultibodyPlant(0.0)
-    add_cell_models(plant, Scenario())
-    plant.Finalize()
+    plant, _, _ = add_cell_plant(DiagramBuilder(), Scenario())
     dut = SensorPose(plant, plant.GetFrameByName("tof"))
     context = dut.CreateDefaultContext()
     # World = base_link on the table; UR's `base` is base_link turned by pi about z; the sensor
