@@ -85,16 +85,14 @@ class LrNbvPolicy(ViewpointPolicy):
         self.workspace = workspace
         self.ik = ik
         self.collision_free = collision_free
-        self._reach: Reach | None = None
         self.table_height = table_height
         self.visited = VisitedGrid(params.visited_cell_size)
         self.rng = np.random.default_rng(seed)
         self.iteration = 0
         self.cache: list[_Cached] = []
         self._marked = 0
-        # The last iteration's tree and ROI, for visualisation.
+        # The last iteration's tree (for inspection; Proposal.debug carries what is drawn).
         self.last_tree: ViewTree | None = None
-        self.last_roi: AlignedBox | None = None
 
     # -- helpers --------------------------------------------------------------------------
 
@@ -131,9 +129,11 @@ class LrNbvPolicy(ViewpointPolicy):
         return sample
 
     def _grow(self, tree: ViewTree | np.ndarray, n: int, sampler, snapshot: PlanningSnapshot,
-              roi: AlignedBox, steer: bool = True) -> tuple[ViewTree, np.ndarray, list[int]]:
+              roi: AlignedBox, reach: Reach, steer: bool = True
+              ) -> tuple[ViewTree, np.ndarray, list[int]]:
+        """Grows the tree and scores it; the utilities are current until the next scoring."""
         tree = expand_tree(tree, n, sampler, self.workspace, roi, self._scorer(snapshot),
-                           self._reach, self.params.tree, steer)
+                           reach, self.params.tree, steer)
         utilities = self.utility(tree.candidate_gains())
         return tree, utilities, tree.best_branch(utilities)
 
@@ -179,7 +179,7 @@ class LrNbvPolicy(ViewpointPolicy):
             return Proposal(done=True, reason=f"reached {self.params.num_iterations} iterations")
 
         q = observation.q
-        self._reach = Reach(lambda poses: self.ik(poses, q), self.collision_free)
+        reach = Reach(lambda poses: self.ik(poses, q), self.collision_free)
         roi, object_points, center = self._roi(observation.extraction)
         snapshot = make_snapshot(observation.occupancy, roi, object_points, center,
                                  self.params.gains.density_radius)
@@ -190,8 +190,7 @@ class LrNbvPolicy(ViewpointPolicy):
             # Scored now: the running maxima may have grown since the cache was updated.
             return self.utility(Gains.concatenate([c.gains for c in cached_before]))
 
-        def best_node(tree: ViewTree, branch: list[int]) -> tuple[int | None, float]:
-            utilities = self.utility(tree.candidate_gains())
+        def best_node(utilities: np.ndarray, branch: list[int]) -> tuple[int | None, float]:
             if not branch:
                 return None, -np.inf
             best = max(branch, key=lambda i: utilities[i - 1])
@@ -200,26 +199,25 @@ class LrNbvPolicy(ViewpointPolicy):
         started = time.perf_counter()
         n = self.params.samples_per_iteration
         tree, utilities, branch = self._grow(observation.X_WS, n, self._random_position,
-                                             snapshot, roi)
+                                             snapshot, roi, reach)
         cached_nodes: set[int] = set()
         self._cache_off_branch(tree, utilities, branch, cached_nodes)
-        best, u_best = best_node(tree, branch)
+        best, u_best = best_node(utilities, branch)
         used_cached_tree = False
-        if cached_before and u_best < cached_utilities().max():
+        u_cached = cached_utilities() if cached_before else None
+        if cached_before and u_best < u_cached.max():
             # Line 11: expand this tree from the cached nodes better than its best node.
-            u_cached = cached_utilities()
             promising = [cached_before[i] for i in np.argsort(-u_cached, kind="stable")
                          if u_cached[i] > u_best][:n]
             size = tree.size
             tree, utilities, branch = self._grow(tree, len(promising),
                                                  self._cached_sampler(promising), snapshot,
-                                                 roi, steer=False)
+                                                 roi, reach, steer=False)
             self._cache_off_branch(tree, utilities, branch, cached_nodes)
             used_cached_tree = tree.size > size
-        best, u_best = best_node(tree, branch)
-        utilities = self.utility(tree.candidate_gains())
+            best, u_best = best_node(utilities, branch)
         expansion_s = time.perf_counter() - started
-        self.last_tree, self.last_roi = tree, roi
+        self.last_tree = tree
         final_cached = cached_utilities() if cached_before else None
         best_cached = float(final_cached.max()) if cached_before else None
         worst_cached = float(final_cached.min()) if cached_before else None

@@ -29,7 +29,8 @@ from lrnbv_drake.mapping import ray_box_interval
 from lrnbv_drake.planning.config import GainParams, UtilityWeights
 from lrnbv_drake.sensor import ZoneGeometry
 
-UNKNOWN, FREE, OCCUPIED = -1, 0, 1
+#: Cell states in a snapshot, as `OccupancyMap.classify` returns them (0 is free).
+UNKNOWN, OCCUPIED = -1, 1
 
 
 @dc.dataclass
@@ -125,10 +126,10 @@ def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state
                 if i < 0 or j < 0 or k < 0 or i >= nx or j >= ny or k >= nz:
                     continue
                 s = state[i, j, k]
-                if s == -1:
+                if s == UNKNOWN:
                     ge += cell_volume
                 gd += 1.0 / (1.0 + density[i, j, k])
-                if s == 1:  # the surface is seen; nothing behind it is
+                if s == OCCUPIED:  # the surface is seen; nothing behind it is
                     break
         out_ge[p] = ge
         out_gd[p] = gd
