@@ -1,6 +1,6 @@
 """Wall time of the paper's campaign: 4 objects x 5 trials x every available planner.
 
-Runs `lrnbv benchmark` with `--jobs 2` (every planner of `lrnbv_drake.episode.PLANNERS`) in a
+Runs `lrnbv benchmark` with `--jobs 2` (every planner of `experiments.episode.PLANNERS`) in a
 fresh folder, since a resumed campaign skips its finished episodes and would time nothing, and
 keeps the folder for a look at summary.md and the figures. Target: under 5 minutes on 2 cores.
 
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lrnbv_drake.campaign import add_benchmark_command, run_benchmark
-from lrnbv_drake.episode import PLANNERS
-from lrnbv_drake.objects import PAPER_OBJECTS
+from lrnbv_drake.core.objects import PAPER_OBJECTS
+from lrnbv_drake.experiments.campaign import add_benchmark_command, run_benchmark
+from lrnbv_drake.experiments.episode import PLANNERS
 
 TARGET_SECONDS = 300.0
 

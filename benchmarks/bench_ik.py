@@ -23,8 +23,8 @@ from pydrake.multibody.inverse_kinematics import InverseKinematics
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.solvers import SnoptSolver, Solve
 
-from lrnbv_drake import kinematics as kin
-from lrnbv_drake.resources import make_parser, package_url
+from lrnbv_drake.core import kinematics as kin
+from lrnbv_drake.station.resources import make_parser, package_url
 
 POSITION_TOL = 1e-3
 ANGLE_TOL = np.deg2rad(1.0)

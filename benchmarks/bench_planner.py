@@ -20,11 +20,16 @@ import time
 
 import numpy as np
 
-from lrnbv_drake.cell import zone_geometry
-from lrnbv_drake.episode import build_episode, run_episode
-from lrnbv_drake.planning.rrt import aim_points, orient
-from lrnbv_drake.planning.utility import VisitedGrid, evaluate_gains, make_snapshot, sensor_rays
-from lrnbv_drake.scenario import Scenario
+from lrnbv_drake.core.planning.rrt import aim_points, orient
+from lrnbv_drake.core.planning.utility import (
+    VisitedGrid,
+    evaluate_gains,
+    make_snapshot,
+    sensor_rays,
+)
+from lrnbv_drake.experiments.episode import build_episode, run_episode
+from lrnbv_drake.station.cell import zone_geometry
+from lrnbv_drake.station.scenario import Scenario
 
 PAPER_SECONDS_PER_ITERATION = 2.0
 

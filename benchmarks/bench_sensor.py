@@ -23,7 +23,7 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from lrnbv_drake.sensor import SensorModelParams, frame_rng, zone_readings
+from lrnbv_drake.core.sensor import SensorModelParams, frame_rng, zone_readings
 from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer, sample_zone_depths
 
 # Sensor 0.4 m above the table top, optical axis pitched 45 degrees down towards +x.

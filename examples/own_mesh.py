@@ -14,8 +14,8 @@ from pathlib import Path
 
 import trimesh
 
-from lrnbv_drake.episode import run_episode
-from lrnbv_drake.scenario import Scenario
+from lrnbv_drake.experiments.episode import run_episode
+from lrnbv_drake.station.scenario import Scenario
 
 if len(sys.argv) > 1:
     mesh_path, scale = sys.argv[1], float(sys.argv[2]) if len(sys.argv) > 2 else 1.0

@@ -3,8 +3,8 @@
     .venv/bin/python examples/run_episode.py
 """
 
-from lrnbv_drake.episode import run_episode
-from lrnbv_drake.scenario import Scenario
+from lrnbv_drake.experiments.episode import run_episode
+from lrnbv_drake.station.scenario import Scenario
 
 scenario = Scenario(seed=0)
 scenario.object.name = "gripper"

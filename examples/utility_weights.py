@@ -12,9 +12,9 @@ A scenario file does the same:
 
 import dataclasses as dc
 
-from lrnbv_drake.episode import run_episode
-from lrnbv_drake.planning.config import UtilityWeights
-from lrnbv_drake.scenario import Scenario
+from lrnbv_drake.core.planning.config import UtilityWeights
+from lrnbv_drake.experiments.episode import run_episode
+from lrnbv_drake.station.scenario import Scenario
 
 for label, weights in [
     ("Table 1", UtilityWeights()),

@@ -17,7 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lrnbv_drake.hardware.ur_rtde_driver import tcp_pose_from_q
+from lrnbv_drake.core.robot_safety import tcp_pose_from_q
 
 
 @dc.dataclass

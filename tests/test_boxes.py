@@ -8,7 +8,7 @@ import pytest
 import shapely
 import trimesh
 
-from lrnbv_drake.boxes import AlignedBox, OrientedBox
+from lrnbv_drake.core.boxes import AlignedBox, OrientedBox
 
 UNIT = OrientedBox(center=[0.0, 0.0, 0.0], dims=[1.0, 1.0, 1.0], yaw=0.0)
 

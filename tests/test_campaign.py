@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lrnbv_drake import objects
-from lrnbv_drake.campaign import (
+from lrnbv_drake.core import objects
+from lrnbv_drake.core.metrics import BoxMetrics, EpisodeMetrics, coverage_auc, useless_poses
+from lrnbv_drake.experiments.campaign import (
     CampaignConfig,
     CampaignError,
     CampaignObject,
@@ -33,9 +34,8 @@ from lrnbv_drake.campaign import (
     run_campaign,
     trial_streams,
 )
-from lrnbv_drake.episode import PLANNERS
-from lrnbv_drake.figures import FIG3_PANELS, plot_campaign, plot_coverage_curves
-from lrnbv_drake.metrics import BoxMetrics, EpisodeMetrics, coverage_auc, useless_poses
+from lrnbv_drake.experiments.episode import PLANNERS
+from lrnbv_drake.experiments.figures import FIG3_PANELS, plot_campaign, plot_coverage_curves
 
 TRUE_DIMS = {"horizontal_box": (0.30, 0.20, 0.12), "vertical_box": (0.12, 0.10, 0.25)}
 ALL_PLANNERS = ("lrnbv", "nbv", "heu")

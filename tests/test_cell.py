@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from lrnbv_drake import kinematics
-from lrnbv_drake.cell import make_cell
-from lrnbv_drake.motion import MotionPlanner
-from lrnbv_drake.poses import look_at
-from lrnbv_drake.scenario import Scenario, ScenarioError
-from lrnbv_drake.sensor import STATUS_VALID
+from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.poses import look_at
+from lrnbv_drake.core.sensor import STATUS_VALID
+from lrnbv_drake.station.cell import make_cell
+from lrnbv_drake.station.motion import MotionPlanner
+from lrnbv_drake.station.scenario import Scenario, ScenarioError
 
 
 def test_ports_have_the_stable_names():

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from lrnbv_drake import objects
-from lrnbv_drake.cell import place_object
-from lrnbv_drake.cli import main
-from lrnbv_drake.scenario import Scenario
-from lrnbv_drake.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.cli.main import main
+from lrnbv_drake.core import objects
+from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.station.cell import place_object
+from lrnbv_drake.station.scenario import Scenario
 
 
 @pytest.fixture(scope="module")

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from lrnbv_drake.episode import run_episode
-from lrnbv_drake.scenario import Scenario
+from lrnbv_drake.experiments.episode import run_episode
+from lrnbv_drake.station.scenario import Scenario
 
 
 @pytest.fixture(scope="module")

@@ -14,12 +14,13 @@ import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_dump_typed
 
-from lrnbv_drake import kinematics
-from lrnbv_drake.cell import make_cell, place_object
-from lrnbv_drake.cli import main
-from lrnbv_drake.episode import run_episode
-from lrnbv_drake.hardware import session
-from lrnbv_drake.hardware.session import (
+from lrnbv_drake.cli.main import main
+from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.planning.heu import HeuParams, heu_poses
+from lrnbv_drake.drivers.tof_serial import SensorTimeout
+from lrnbv_drake.experiments import session
+from lrnbv_drake.experiments.episode import run_episode
+from lrnbv_drake.experiments.session import (
     JOURNAL_FILE,
     MAP_FILE,
     SESSION_FILE,
@@ -28,10 +29,9 @@ from lrnbv_drake.hardware.session import (
     resume,
     run_session,
 )
-from lrnbv_drake.hardware.tof_serial import SensorTimeout
-from lrnbv_drake.motion import MotionPlanner
-from lrnbv_drake.planning.heu import HeuParams, heu_poses
-from lrnbv_drake.scenario import load_scenario
+from lrnbv_drake.station.cell import make_cell, place_object
+from lrnbv_drake.station.motion import MotionPlanner
+from lrnbv_drake.station.scenario import load_scenario
 
 SCENARIO = """
 max_poses: 2

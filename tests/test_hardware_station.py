@@ -12,13 +12,14 @@ import pytest
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import Simulator
 
-from lrnbv_drake import kinematics
-from lrnbv_drake.cell import make_cell
-from lrnbv_drake.hardware.station import ToFFrameStamper, check_hardware_config, make_hardware_cell
-from lrnbv_drake.hardware.tof_serial import SensorTimeout, SerialToFSensor
-from lrnbv_drake.hardware.ur_rtde_driver import PlaybackRobot
-from lrnbv_drake.scenario import Scenario, ScenarioError, load_scenario
-from lrnbv_drake.sensor import ToFFrame
+from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.drivers.playback_robot import PlaybackRobot
+from lrnbv_drake.drivers.tof_serial import SensorTimeout, ToFSerialReader
+from lrnbv_drake.station.cell import make_cell
+from lrnbv_drake.station.hardware_cell import check_hardware_config, make_hardware_cell
+from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario
+from lrnbv_drake.systems.tof_frame_stamper import ToFFrameStamper
 
 HOME = kinematics.HOME.copy()
 DRY = "hardware: {robot_driver: playback, sensor_driver: simulated}"
@@ -32,7 +33,7 @@ def _ports(diagram):
 
 @pytest.fixture
 def loop_driver():
-    with SerialToFSensor("loop://") as driver:
+    with ToFSerialReader("loop://") as driver:
         yield driver
 
 

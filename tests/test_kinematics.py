@@ -12,8 +12,8 @@ import pytest
 from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
 
-from lrnbv_drake import kinematics as kin
-from lrnbv_drake.resources import MODELS_DIR, make_parser, package_url
+from lrnbv_drake.core import kinematics as kin
+from lrnbv_drake.station.resources import MODELS_DIR, make_parser, package_url
 
 
 def _random_q(n: int, seed: int) -> np.ndarray:

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from pyoctomap import OcTree
 
-from lrnbv_drake.mapping import KEY_OFFSET, OccupancyMap, SensorModel, frame_scan, logodds
-from lrnbv_drake.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.mapping import KEY_OFFSET, OccupancyMap, OccupancyUpdate, frame_scan, logodds
+from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
 
 RES = 0.01
 # Notes 4.6: reference scenarios are 8x8 zone clouds from this origin.
@@ -71,7 +71,7 @@ def assert_same_as_octree(m: OccupancyMap, tree: OcTree, rng: np.random.Generato
 
 def test_sensor_model_log_odds_are_octomaps():
     tree = OcTree(RES)
-    ours = SensorModel().log_odds_array()
+    ours = OccupancyUpdate().log_odds_array()
     theirs = [tree.getProbHitLog(), tree.getProbMissLog(), tree.getClampingThresMinLog(),
               tree.getClampingThresMaxLog(), tree.getOccupancyThresLog()]
     np.testing.assert_array_equal(ours, np.array(theirs, dtype=np.float32))

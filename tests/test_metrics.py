@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from lrnbv_drake.boxes import OrientedBox
-from lrnbv_drake.metrics import (
+from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.metrics import (
     box_metrics,
     coverage_auc,
     coverage_curve,

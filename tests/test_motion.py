@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from lrnbv_drake import kinematics
-from lrnbv_drake.motion import MotionFailure, MotionPlanner, trapezoidal_trajectory
-from lrnbv_drake.poses import look_at
-from lrnbv_drake.scenario import Scenario
+from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.poses import look_at
+from lrnbv_drake.station.motion import MotionFailure, MotionPlanner, trapezoidal_trajectory
+from lrnbv_drake.station.scenario import Scenario
 
 
 def _sample(traj, n=2001):
@@ -78,7 +78,7 @@ def test_failures_are_typed_and_explained(planner, position, failure):
 
 
 def test_sensor_pose_matches_drake_kinematics(planner):
-    from lrnbv_drake.cell import make_cell
+    from lrnbv_drake.station.cell import make_cell
 
     dut = make_cell(Scenario())
     context = dut.CreateDefaultContext()

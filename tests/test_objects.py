@@ -33,8 +33,8 @@ from pydrake.multibody.parsing import (
 )
 from pydrake.multibody.plant import MultibodyPlant
 
-from lrnbv_drake import objects
-from lrnbv_drake.resources import MODELS_DIR, make_parser
+from lrnbv_drake.core import objects
+from lrnbv_drake.station.resources import MODELS_DIR, make_parser
 
 OBJECTS_DIR = MODELS_DIR / "objects"
 CELL_DIR = MODELS_DIR / "cell"

@@ -8,8 +8,8 @@ import pytest
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
-from lrnbv_drake.mapping import OccupancyMap
-from lrnbv_drake.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.mapping import OccupancyMap
+from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
 from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
 
 BOUNDS = ((-0.6, -0.6, -0.1), (0.6, 0.6, 0.9))

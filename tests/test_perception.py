@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from lrnbv_drake.boxes import AlignedBox, OrientedBox
-from lrnbv_drake.perception import (
+from lrnbv_drake.core.boxes import AlignedBox, OrientedBox
+from lrnbv_drake.core.perception import (
     LABEL_NOISE,
     LABEL_OUTSIDE,
     LABEL_TABLE,

@@ -3,21 +3,21 @@
 import numpy as np
 import pytest
 
-from lrnbv_drake.boxes import AlignedBox
-from lrnbv_drake.planning.config import GainParams, PlannerParams, UtilityWeights
-from lrnbv_drake.planning.lrnbv import LrNbvPolicy, _Cached, cache_capacity
-from lrnbv_drake.planning.policy import CANDIDATE_RANK, Observation
-from lrnbv_drake.planning.rrt import ViewTree
-from lrnbv_drake.planning.utility import (
+from lrnbv_drake.core.boxes import AlignedBox
+from lrnbv_drake.core.planning.config import GainParams, PlannerParams, UtilityWeights
+from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy, _Cached, cache_capacity
+from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation
+from lrnbv_drake.core.planning.rrt import ViewTree
+from lrnbv_drake.core.planning.utility import (
     Gains,
     UtilityFunction,
     VisitedGrid,
     evaluate_gains,
     make_snapshot,
 )
-from lrnbv_drake.poses import look_at
-from lrnbv_drake.sensor import ToFFrame, ZoneGeometry
-from lrnbv_drake.systems.nbv_planner import Acquisition
+from lrnbv_drake.core.poses import look_at
+from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.systems.acquisition_loop import Acquisition
 
 RES = 0.01
 CELL = RES**3
@@ -168,7 +168,7 @@ class PositionGains:
 
 
 def _with_cache(monkeypatch, exploration, cached_positions):
-    import lrnbv_drake.planning.lrnbv as mut
+    import lrnbv_drake.core.planning.lrnbv as mut
 
     monkeypatch.setattr(mut, "evaluate_gains", PositionGains(exploration))
     dut = _policy()

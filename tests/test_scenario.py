@@ -2,7 +2,7 @@
 
 import pytest
 
-from lrnbv_drake.scenario import Scenario, ScenarioError, load_scenario
+from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario
 
 
 def test_defaults_and_override(tmp_path):

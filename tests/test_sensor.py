@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from lrnbv_drake.sensor import (
+from lrnbv_drake.core.sensor import (
     STATUS_NO_TARGET,
     STATUS_VALID,
     NoiseModel,

@@ -15,7 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from lrnbv_drake.hardware.tof_protocol import (
+from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.tof_protocol import (
     MAX_LINE_BYTES,
     CrcError,
     FieldCountError,
@@ -32,7 +33,6 @@ from lrnbv_drake.hardware.tof_protocol import (
     encode_frame,
     parse_line,
 )
-from lrnbv_drake.sensor import ToFFrame
 
 FIRMWARE = Path(__file__).resolve().parents[1] / "firmware"
 

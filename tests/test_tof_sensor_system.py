@@ -13,7 +13,7 @@ from pydrake.multibody.tree import SpatialInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from lrnbv_drake.sensor import (
+from lrnbv_drake.core.sensor import (
     STATUS_NO_TARGET,
     STATUS_VALID,
     NoiseModel,

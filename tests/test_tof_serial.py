@@ -1,4 +1,4 @@
-"""SerialToFSensor against a fake board on a pseudo-terminal, its LeafSystem, and the
+"""ToFSerialReader against a fake board on a pseudo-terminal, its LeafSystem, and the
 `lrnbv sensor` commands. Every wait is bounded; nothing asserts on how long anything took."""
 
 from __future__ import annotations
@@ -17,22 +17,22 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from lrnbv_drake.hardware.sensor_cli import (
+from lrnbv_drake.cli.sensor import (
     fit_noise_model,
     frames_to_arrays,
     load_recording,
     main,
     save_npz_atomically,
 )
-from lrnbv_drake.hardware.tof_protocol import encode_frame
-from lrnbv_drake.hardware.tof_serial import (
+from lrnbv_drake.core.sensor import NoiseModel, ToFFrame
+from lrnbv_drake.core.tof_protocol import encode_frame
+from lrnbv_drake.drivers.tof_serial import (
     SensorError,
     SensorTimeout,
-    SerialToFSensor,
-    SerialToFSensorSystem,
+    ToFSerialReader,
 )
-from lrnbv_drake.scenario import load_scenario
-from lrnbv_drake.sensor import NoiseModel, ToFFrame
+from lrnbv_drake.station.scenario import load_scenario
+from lrnbv_drake.systems.tof_serial_receiver import ToFSerialReceiver
 
 WAIT = 5.0  # upper bound of every wait; a passing run never comes near it
 
@@ -140,8 +140,8 @@ def board(tmp_path: Path) -> Iterator[FakeBoard]:
 
 
 @pytest.fixture
-def sensor(board: FakeBoard) -> Iterator[SerialToFSensor]:
-    with SerialToFSensor(str(board.path), reconnect_interval=0.05, stale_after=0.3) as driver:
+def sensor(board: FakeBoard) -> Iterator[ToFSerialReader]:
+    with ToFSerialReader(str(board.path), reconnect_interval=0.05, stale_after=0.3) as driver:
         # Opening flushes the input, so the board writes only once the port is open.
         _eventually(lambda: driver.connected, "the driver opens the pty")
         yield driver
@@ -150,7 +150,7 @@ def sensor(board: FakeBoard) -> Iterator[SerialToFSensor]:
 # --- Driver ---------------------------------------------------------------------------------
 
 
-def test_clean_frames_arrive_in_order(board: FakeBoard, sensor: SerialToFSensor) -> None:
+def test_clean_frames_arrive_in_order(board: FakeBoard, sensor: ToFSerialReader) -> None:
     board.write(b"".join(encode_frame(_frame(s)) for s in (1, 2, 3)))
     _assert_same(sensor.wait_for_frame(2, timeout=WAIT), _frame(3))
     stats = sensor.stats
@@ -159,7 +159,7 @@ def test_clean_frames_arrive_in_order(board: FakeBoard, sensor: SerialToFSensor)
 
 
 def test_garbage_cut_lines_and_bad_lines_are_dropped_and_counted(
-    board: FakeBoard, sensor: SerialToFSensor
+    board: FakeBoard, sensor: ToFSerialReader
 ) -> None:
     banner, noise = b"vl53l8cx_tof_stream boot", b"\x00\xff~noise"
     cut = encode_frame(_frame(2))[:60]  # a reset mid-line: no CRC, ended by the next '$'
@@ -181,7 +181,7 @@ def test_garbage_cut_lines_and_bad_lines_are_dropped_and_counted(
 
 
 def test_sequence_gaps_and_board_restarts_are_counted(
-    board: FakeBoard, sensor: SerialToFSensor
+    board: FakeBoard, sensor: ToFSerialReader
 ) -> None:
     board.write(b"".join(encode_frame(_frame(s)) for s in (1, 2, 5, 6, 10)))
     sensor.wait_for_frame(9, timeout=WAIT)
@@ -195,7 +195,7 @@ def test_sequence_gaps_and_board_restarts_are_counted(
 
 
 def test_silence_makes_the_frame_stale_and_waits_time_out(
-    board: FakeBoard, sensor: SerialToFSensor
+    board: FakeBoard, sensor: ToFSerialReader
 ) -> None:
     with pytest.raises(SensorTimeout, match=f"no frame from {board.path} in the [0-9.]+ s "
                                             f"since the driver started"):
@@ -210,7 +210,7 @@ def test_silence_makes_the_frame_stale_and_waits_time_out(
 
 
 def test_the_port_vanishing_and_returning_reconnects(
-    board: FakeBoard, sensor: SerialToFSensor
+    board: FakeBoard, sensor: ToFSerialReader
 ) -> None:
     board.write(encode_frame(_frame(1)))
     sensor.wait_for_frame(0, timeout=WAIT)
@@ -230,7 +230,7 @@ def test_the_port_vanishing_and_returning_reconnects(
 
 
 def test_commands_reach_the_board_and_replies_come_back(
-    board: FakeBoard, sensor: SerialToFSensor
+    board: FakeBoard, sensor: ToFSerialReader
 ) -> None:
     sensor.send_command("RES 64")
     assert board.read(8) == b"RES 64\r\n"
@@ -241,7 +241,7 @@ def test_commands_reach_the_board_and_replies_come_back(
 
 
 def test_loop_url_and_the_frame_queue() -> None:
-    with SerialToFSensor("loop://", queue_size=2) as dut:
+    with ToFSerialReader("loop://", queue_size=2) as dut:
         _eventually(lambda: dut.connected, "loop:// opens")
         dut.write(b"".join(encode_frame(_frame(s)) for s in (1, 2, 3)))
         _eventually(lambda: dut.stats.frames == 3, "three frames looped back")
@@ -250,12 +250,12 @@ def test_loop_url_and_the_frame_queue() -> None:
         with pytest.raises(SensorTimeout):
             dut.next_frame(timeout=0.05)
     with pytest.raises(SensorError, match="queue_size"):
-        SerialToFSensor("loop://").next_frame(0.05)
+        ToFSerialReader("loop://").next_frame(0.05)
 
 
 def test_system_copies_the_drivers_frame_to_tof_frame() -> None:
-    with SerialToFSensor("loop://") as driver:
-        dut = SerialToFSensorSystem(driver, period=0.1)
+    with ToFSerialReader("loop://") as driver:
+        dut = ToFSerialReceiver(driver, period=0.1)
         simulator = Simulator(dut)
         context = simulator.get_mutable_context()
         tof_frame = dut.GetOutputPort("tof_frame")

@@ -6,7 +6,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, LeafSystem
 
-from lrnbv_drake.perception import ExtractionParams, extract_object
+from lrnbv_drake.core.perception import ExtractionParams, extract_object
 
 
 class ObjectClustering(LeafSystem):

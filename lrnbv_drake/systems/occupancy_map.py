@@ -1,6 +1,6 @@
 """`OccupancyMapSystem`: the occupancy map as a Drake system, fed with ToF frames.
 
-The map itself (`lrnbv_drake.mapping.OccupancyMap`, tens of MB) lives outside the Context: the
+The map itself (`lrnbv_drake.core.mapping.OccupancyMap`, tens of MB) lives outside the Context: the
 abstract state holds a handle to it plus the sequence number of the last inserted frame. Drake
 deep-copies abstract state (Value[object] clones with `copy.deepcopy`, and the Simulator clones
 the state around every unrestricted update); deep copies of the handle share the map, so a copy
@@ -19,8 +19,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import Context, EventStatus, LeafSystem, State
 
-from lrnbv_drake.mapping import BoundsLike, OccupancyMap, SensorModel
-from lrnbv_drake.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.mapping import BoundsLike, OccupancyMap, OccupancyUpdate
+from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
 
 
 @dc.dataclass
@@ -63,7 +63,7 @@ class OccupancyMapSystem(LeafSystem):
         period: update period, seconds; None for forced updates only.
         cone_k: sub-rays per zone side in cone mode.
         free_no_target: let no-target zones (status 255) free their rays up to max_range.
-        sensor_model: occupancy update parameters; OctoMap's defaults if None.
+        occupancy_update: occupancy update parameters; OctoMap's defaults if None.
     """
 
     def __init__(
@@ -76,7 +76,7 @@ class OccupancyMapSystem(LeafSystem):
         period: float | None = 0.05,
         cone_k: int = 5,
         free_no_target: bool = False,
-        sensor_model: SensorModel | None = None,
+        occupancy_update: OccupancyUpdate | None = None,
     ) -> None:
         super().__init__()
         if mode not in ("ray", "cone"):
@@ -85,7 +85,7 @@ class OccupancyMapSystem(LeafSystem):
             raise ValueError(f"period must be > 0 or None; got {period}")
         if free_no_target and max_range is None:
             raise ValueError("free_no_target needs a max_range")
-        self._map = OccupancyMap(resolution, bounds=bounds, sensor_model=sensor_model)
+        self._map = OccupancyMap(resolution, bounds=bounds, occupancy_update=occupancy_update)
         self._geometry = geometry if geometry is not None else ZoneGeometry()
         self._insert_args = dict(mode=mode, max_range=max_range, cone_k=cone_k,
                                  free_no_target=free_no_target)

@@ -2,7 +2,7 @@
 the device would report.
 
 The reduction (nearest sizeable surface per zone, noise, status) lives in the Drake-free
-`lrnbv_drake.sensor`; this module only produces its input, a (res, res, k, k) grid of
+`lrnbv_drake.core.sensor`; this module only produces its input, a (res, res, k, k) grid of
 perpendicular depths sampled evenly in angle over each zone's footprint, from one
 `QueryObject.RenderDepthImage` call (docs/sensor-model.md).
 
@@ -34,7 +34,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import Context, InputPort, LeafSystem, OutputPort, State
 from pydrake.systems.sensors import CameraInfo
 
-from lrnbv_drake.sensor import SensorModelParams, ToFFrame, frame_rng, zone_readings
+from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame, frame_rng, zone_readings
 
 #: Near clipping plane and minimum depth, metres: geometry closer than 5 mm to the sensor is not
 #: rendered. The device's own 20 mm minimum is applied by the sensor model, not here.

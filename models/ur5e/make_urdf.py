@@ -1,6 +1,6 @@
 """Generates `ur5e.urdf` next to this file: `.venv/bin/python models/ur5e/make_urdf.py`.
 
-The kinematics and limits come from `lrnbv_drake.kinematics`, so the model and the analytic IK
+The kinematics and limits come from `lrnbv_drake.core.kinematics`, so the model and the analytic IK
 cannot drift apart (`tests/test_kinematics.py` checks the shipped file is this script's output).
 
 - Frames and joint origins are those of the ROS2 `ur_description` (`urdf/ur_macro.xacro` with
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrnbv_drake import kinematics as kin
+from lrnbv_drake.core import kinematics as kin
 
 PI = np.pi
 DRAKE_NS = "http://drake.mit.edu"

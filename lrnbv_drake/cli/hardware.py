@@ -1,0 +1,135 @@
+"""`lrnbv hardware`: run an episode on the real cell, rehearse it, or resume it.
+
+    lrnbv hardware --robot-ip IP --sensor-port PORT --out DIR [--scenario FILE]
+                   [--planner lrnbv] [--dry-run] [--yes] [--meshcat]
+    lrnbv hardware --resume DIR [--robot-ip IP] [--sensor-port PORT] [--yes] [--meshcat]
+
+Before the first motion it describes what is about to happen and asks for `yes` on stdin
+(`--yes` skips the question; a dry run never asks). Everything captured is in DIR as it
+happens; after a stop, fix the cause and `--resume DIR`. docs/hardware.md has the details.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses as dc
+import sys
+from collections.abc import Sequence
+
+from lrnbv_drake.core.robot_safety import RobotConnectionError, RobotFault
+from lrnbv_drake.drivers.tof_serial import SensorError
+from lrnbv_drake.experiments.episode import PLANNERS, make_meshcat
+from lrnbv_drake.experiments.session import SessionError, SessionResult, resume, run_session
+from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario
+
+#: Exit codes: the planner ended the episode; a fault stopped it; it could not start.
+EXIT_DONE, EXIT_FAULT, EXIT_ERROR = 0, 1, 2
+
+
+def ask_on_stdin(message: str) -> bool:
+    """Prints `message` and returns whether the operator typed yes."""
+    print(message)
+    try:
+        return input("Move the robot? Type 'yes' to go on: ").strip().lower() == "yes"
+    except EOFError:
+        return False
+
+
+def add_hardware_commands(subparsers: argparse._SubParsersAction) -> None:
+    """Adds `hardware` to the `lrnbv` parser's subcommands."""
+    p = subparsers.add_parser("hardware", help="run, rehearse or resume an episode on the "
+                                               "real UR5e and sensor",
+                              description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--robot-ip", help="the UR controller's address (robot.robot_ip)")
+    p.add_argument("--sensor-port", help="the sensor board's serial port (sensor.serial_port)")
+    p.add_argument("--out", help="output folder of a new session")
+    p.add_argument("--scenario", help="scenario YAML file; the flags above override it")
+    p.add_argument("--planner", choices=PLANNERS, default="lrnbv")
+    p.add_argument("--dry-run", action="store_true",
+                   help="rehearse: play the commands back in Meshcat with simulated frames; "
+                        "nothing moves (the robot, if --robot-ip is given, is only read)")
+    p.add_argument("--yes", action="store_true", help="do not ask before moving the robot")
+    p.add_argument("--meshcat", action="store_true",
+                   help="serve the live Meshcat view on every interface (by default on "
+                        "localhost; a replay.html is written either way)")
+    p.add_argument("--resume", metavar="DIR", help="continue the session recorded in DIR")
+
+
+def _scenario(args: argparse.Namespace) -> Scenario:
+    scenario = load_scenario(filename=args.scenario) if args.scenario else Scenario()
+    if args.robot_ip is not None:
+        scenario = dc.replace(scenario, robot=dc.replace(scenario.robot,
+                                                         robot_ip=args.robot_ip))
+    if args.sensor_port is not None:
+        scenario = dc.replace(scenario, sensor=dc.replace(scenario.sensor,
+                                                          serial_port=args.sensor_port))
+    return scenario
+
+
+def _check_args(args: argparse.Namespace) -> str | None:
+    """What is wrong with the combination of flags, if anything."""
+    if args.resume is not None:
+        extra = [flag for flag, given in (("--out", args.out is not None),
+                                          ("--scenario", args.scenario is not None),
+                                          ("--dry-run", args.dry_run)) if given]
+        if extra:
+            return (f"--resume takes the scenario, planner and dry-run choice from the "
+                    f"session; drop {', '.join(extra)}")
+        return None
+    if args.out is None:
+        return "--out DIR is required (or --resume DIR)"
+    if not args.dry_run:
+        missing = [f for f in ("robot_ip", "sensor_port") if getattr(args, f) is None]
+        if missing and args.scenario is None:
+            return (f"{' and '.join('--' + f.replace('_', '-') for f in missing)} required "
+                    f"(or a --scenario that sets them, or --dry-run)")
+    return None
+
+
+def run_hardware_command(args: argparse.Namespace) -> int:
+    """Runs a command parsed by `add_hardware_commands`; returns the exit code."""
+    problem = _check_args(args)
+    if problem is not None:
+        print(f"lrnbv hardware: error: {problem}", file=sys.stderr)
+        return EXIT_ERROR
+    confirm = (lambda message: True) if args.yes else ask_on_stdin
+    meshcat = make_meshcat(live=args.meshcat)
+    if meshcat is not None:
+        print(f"Meshcat: {meshcat.web_url()}")
+    try:
+        if args.resume is not None:
+            result = resume(args.resume, confirm=confirm, meshcat=meshcat,
+                            robot_ip=args.robot_ip, sensor_port=args.sensor_port)
+        else:
+            result = run_session(_scenario(args), args.planner, args.out, confirm=confirm,
+                                 meshcat=meshcat, dry_run=args.dry_run)
+    except (SessionError, ScenarioError, RobotConnectionError, RobotFault, SensorError,
+            OSError) as e:
+        print(f"lrnbv hardware: nothing moved: {e}", file=sys.stderr)
+        return EXIT_ERROR
+    return _summarize(result)
+
+
+def _summarize(result: SessionResult) -> int:
+    resumed = f" ({result.resumed_from} from earlier runs)" if result.resumed_from else ""
+    print(f"{result.n_poses} poses{resumed}; wrote {result.out_dir}")
+    if result.fault == "declined":
+        print(result.termination)
+        return EXIT_ERROR
+    if result.fault is not None:
+        print(f"STOPPED ({result.fault}): {result.termination}", file=sys.stderr)
+        return EXIT_FAULT
+    print(f"ended: {result.termination}")
+    return EXIT_DONE
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`python -m lrnbv_drake.cli.hardware hardware ...`, as `lrnbv hardware`."""
+    parser = argparse.ArgumentParser(prog="lrnbv")
+    add_hardware_commands(parser.add_subparsers(dest="command", required=True))
+    return run_hardware_command(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

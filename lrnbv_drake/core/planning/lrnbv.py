@@ -1,0 +1,283 @@
+"""LR-NBV (Algorithm 1) as a viewpoint policy, and the NBV baseline (the same without Gd, Gv).
+
+One call of `propose` is one iteration of Algorithm 1's loop, split where the acquisition loop
+does the robot's part (capture, map update, clustering: lines 16-18):
+
+- lines 19-21 (for the previous iteration): re-evaluate the cached nodes against the new map,
+  keep the best m_i, take the best and worst cached utilities;
+- lines 7-9: grow a new tree from the current pose, cache off-branch nodes above tau, take the
+  best node of the best branch;
+- lines 10-14: if it is worse than the best cached node, grow a tree from samples around the
+  most promising cached nodes and take its best node instead;
+- lines 15/24: stop if the best node is not better than the worst cached one; else propose it.
+
+docs/algorithm.md maps each line and equation to the code and gives every reading chosen where
+the paper is ambiguous.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from lrnbv_drake.core.boxes import AlignedBox
+from lrnbv_drake.core.planning.config import PlannerParams
+from lrnbv_drake.core.planning.policy import Observation, Proposal, Recorded, ViewpointPolicy
+from lrnbv_drake.core.planning.rrt import Reach, ViewTree, expand_tree
+from lrnbv_drake.core.planning.utility import (
+    Gains,
+    PlanningSnapshot,
+    UtilityFunction,
+    VisitedGrid,
+    evaluate_gains,
+    make_snapshot,
+    sensor_rays,
+)
+from lrnbv_drake.core.sensor import ZoneGeometry
+
+
+@dc.dataclass
+class _Cached:
+    """A cached node: its pose and raw gains (scored again whenever compared)."""
+
+    X_WS: np.ndarray
+    gains: Gains
+
+
+def cache_capacity(m0: int, iteration: int, num_iterations: int) -> int:
+    """m_i: the number of cached nodes kept after iteration i, falling linearly from m0."""
+    return max(0, math.ceil(m0 * (1.0 - iteration / num_iterations)))
+
+
+class LrNbvPolicy(ViewpointPolicy):
+    """The LR-NBV planner (or, with `variant="nbv"`, the standard NBV baseline).
+
+    Args:
+        params: planner parameters.
+        geometry: the sensor's zones, from which the gain rays are cast.
+        workspace: box the sensor positions must lie in.
+        ik: IK solutions of sensor poses (N, 4, 4) from joints q: `ik(poses, q)`, each a
+            (k, 6) array, best first.
+        collision_free: whether a joint configuration is collision free.
+        table_height: the ROI never extends below the table top.
+        seed: seed of the tree sampling.
+        variant: "lrnbv" or "nbv" (Gd and Gv weights set to zero).
+    """
+
+    capture_initial = True
+
+    def __init__(self, params: PlannerParams, geometry: ZoneGeometry, workspace: AlignedBox,
+                 ik, collision_free, table_height: float = 0.0, seed: int = 0,
+                 variant: str = "lrnbv"):
+        if variant not in ("lrnbv", "nbv"):
+            raise ValueError(f"unknown variant '{variant}': expected 'lrnbv' or 'nbv'")
+        weights = params.weights
+        if variant == "nbv":
+            weights = dc.replace(weights, density=0.0, visited=0.0)
+        self.name = variant
+        self.params = params
+        self.utility = UtilityFunction(weights, params.gains.normalize)
+        self.rays = sensor_rays(geometry, params.gains.rays_per_zone)
+        self.workspace = workspace
+        self.ik = ik
+        self.collision_free = collision_free
+        self.table_height = table_height
+        self.visited = VisitedGrid(params.visited_cell_size)
+        self.rng = np.random.default_rng(seed)
+        self.iteration = 0
+        self.cache: list[_Cached] = []
+        self._marked = 0
+        # The last iteration's tree (for inspection; Proposal.debug carries what is drawn).
+        self.last_tree: ViewTree | None = None
+
+    # -- helpers --------------------------------------------------------------------------
+
+    def _scorer(self, snapshot: PlanningSnapshot):
+        def score(poses: np.ndarray) -> tuple[Gains, np.ndarray]:
+            gains = evaluate_gains(poses, snapshot, self.rays, self.visited, self.params.gains)
+            self.utility.observe(gains)
+            return gains, self.utility(gains)
+        return score
+
+    def _roi(self, extraction) -> tuple[AlignedBox, np.ndarray, np.ndarray]:
+        """ROI, object points and x_object from the extraction, or the search region."""
+        if extraction is not None and extraction.found:
+            roi, points, center = extraction.roi, extraction.object_points, extraction.center
+        else:
+            roi = AlignedBox(np.asarray(self.params.search_lower, float),
+                             np.asarray(self.params.search_upper, float))
+            points, center = np.zeros((0, 3)), roi.center
+        lower = roi.lower.copy()
+        lower[2] = max(lower[2], self.table_height)  # nothing to explore under the table top
+        return AlignedBox(lower, roi.upper), points, center
+
+    def _random_position(self) -> np.ndarray:
+        return self.rng.uniform(self.workspace.lower, self.workspace.upper)
+
+    def _cached_sampler(self, promising: list[_Cached]):
+        """Positions around the promising cached nodes, best first, in turn (ExpandRRTCached)."""
+        spread = self.params.cached_sample_spread
+        draws = iter(range(10**9))
+
+        def sample() -> np.ndarray:
+            node = promising[next(draws) % len(promising)]
+            return node.X_WS[:3, 3] + self.rng.normal(0.0, spread, 3)
+        return sample
+
+    def _grow(self, tree: ViewTree | np.ndarray, n: int, sampler, snapshot: PlanningSnapshot,
+              roi: AlignedBox, reach: Reach, steer: bool = True
+              ) -> tuple[ViewTree, np.ndarray, list[int]]:
+        """Grows the tree and scores it; the utilities are current until the next scoring."""
+        tree = expand_tree(tree, n, sampler, self.workspace, roi, self._scorer(snapshot),
+                           reach, self.params.tree, steer)
+        utilities = self.utility(tree.candidate_gains())
+        return tree, utilities, tree.best_branch(utilities)
+
+    def _cache_off_branch(self, tree: ViewTree, utilities: np.ndarray, branch: list[int],
+                          cached: set[int]) -> None:
+        """Lines 8 and 12: caches the tree's nodes off the best branch above tau, once each
+        (`cached` holds the indices already cached and is updated)."""
+        on_branch = set(branch)
+        for i in range(1, len(tree.poses)):
+            if i not in on_branch and i not in cached and \
+                    utilities[i - 1] > self.params.cache_threshold:
+                self.cache.append(_Cached(tree.poses[i], tree.gains[i]))
+                cached.add(i)
+
+    def _cached_utilities(self) -> np.ndarray:
+        return self.utility(Gains.concatenate([c.gains for c in self.cache]))
+
+    def _update_cache(self, snapshot: PlanningSnapshot) -> float:
+        """Lines 19-21: re-evaluate the cache, drop the nodes no longer above tau, keep the best
+        m_i; returns the seconds it took."""
+        started = time.perf_counter()
+        if self.cache:
+            poses = np.array([c.X_WS for c in self.cache])
+            gains = evaluate_gains(poses, snapshot, self.rays, self.visited, self.params.gains)
+            self.utility.observe(gains)
+            self.cache = [_Cached(X, gains.take(i)) for i, X in enumerate(poses)]
+            keep = cache_capacity(self.params.num_cached_nodes, self.iteration,
+                                  self.params.num_iterations)
+            utilities = self._cached_utilities()
+            order = np.argsort(-utilities, kind="stable")[:keep]
+            self.cache = [self.cache[i] for i in order
+                          if utilities[i] > self.params.cache_threshold]
+        return time.perf_counter() - started
+
+    # -- the policy -----------------------------------------------------------------------
+
+    def propose(self, observation: Observation) -> Proposal:
+        # Acquisitions since the last call make their positions visited (Gv).
+        if observation.n_acquisitions > self._marked:
+            self.visited.visit(observation.X_WS[:3, 3])
+            self._marked = observation.n_acquisitions
+        if self.iteration >= self.params.num_iterations:
+            return Proposal(done=True, reason=f"reached {self.params.num_iterations} iterations")
+
+        q = observation.q
+        reach = Reach(lambda poses: self.ik(poses, q), self.collision_free)
+        roi, object_points, center = self._roi(observation.extraction)
+        snapshot = make_snapshot(observation.occupancy, roi, object_points, center,
+                                 self.params.gains.density_radius)
+        reevaluation_s = self._update_cache(snapshot)
+        cached_before = list(self.cache)
+
+        def cached_utilities() -> np.ndarray:
+            # Scored now: the running maxima may have grown since the cache was updated.
+            return self.utility(Gains.concatenate([c.gains for c in cached_before]))
+
+        def best_node(utilities: np.ndarray, branch: list[int]) -> tuple[int | None, float]:
+            if not branch:
+                return None, -np.inf
+            best = max(branch, key=lambda i: utilities[i - 1])
+            return best, float(utilities[best - 1])
+
+        started = time.perf_counter()
+        n = self.params.samples_per_iteration
+        tree, utilities, branch = self._grow(observation.X_WS, n, self._random_position,
+                                             snapshot, roi, reach)
+        cached_nodes: set[int] = set()
+        self._cache_off_branch(tree, utilities, branch, cached_nodes)
+        best, u_best = best_node(utilities, branch)
+        used_cached_tree = False
+        u_cached = cached_utilities() if cached_before else None
+        if cached_before and u_best < u_cached.max():
+            # Line 11: expand this tree from the cached nodes better than its best node.
+            promising = [cached_before[i] for i in np.argsort(-u_cached, kind="stable")
+                         if u_cached[i] > u_best][:n]
+            size = tree.size
+            tree, utilities, branch = self._grow(tree, len(promising),
+                                                 self._cached_sampler(promising), snapshot,
+                                                 roi, reach, steer=False)
+            self._cache_off_branch(tree, utilities, branch, cached_nodes)
+            used_cached_tree = tree.size > size
+            best, u_best = best_node(utilities, branch)
+        expansion_s = time.perf_counter() - started
+        self.last_tree = tree
+        final_cached = cached_utilities() if cached_before else None
+        best_cached = float(final_cached.max()) if cached_before else None
+        worst_cached = float(final_cached.min()) if cached_before else None
+
+        info = {
+            "iteration": self.iteration,
+            "utility": float(u_best),
+            "best_cached_utility": best_cached,
+            "worst_cached_utility": worst_cached,
+            "n_tree_nodes": tree.size,
+            "n_cached": len(self.cache),
+            "used_cached_tree": used_cached_tree,
+            "object_found": bool(observation.extraction is not None
+                                 and observation.extraction.found),
+            "roi": [roi.lower.tolist(), roi.upper.tolist()],
+            "tree_expansion_s": expansion_s,
+            "cache_reevaluation_s": reevaluation_s,
+        }
+        if best is None:
+            return Proposal(done=True, reason="no reachable view found around the ROI",
+                            info=info)
+        if self.iteration > 0 and not cached_before and u_best <= self.params.cache_threshold:
+            return Proposal(done=True, info=info, reason=(
+                f"no cached node is left above tau = {self.params.cache_threshold:g} and the "
+                f"best new view's utility {u_best:.4g} is not above it either"))
+        if cached_before and u_best <= worst_cached:
+            return Proposal(done=True, info=info, reason=(
+                f"best utility {u_best:.4g} is not above the worst cached node's "
+                f"{worst_cached:.4g} (Algorithm 1, line 24)"))
+        g = tree.gains[best]
+        info["gains"] = {"exploration": float(g.exploration[0]), "density": float(g.density[0]),
+                         "quality": float(g.quality[0]), "visited": float(g.visited[0])}
+        # The best node first; then the rest of the tree by utility, in case the motion to the
+        # best one fails.
+        order = [best] + [int(i) + 1 for i in np.argsort(-utilities, kind="stable")
+                          if int(i) + 1 != best]
+        debug = {
+            "tree_positions": np.array([X[:3, 3] for X in tree.poses]),
+            "tree_parents": np.array(tree.parents),
+            "best_branch": np.array(branch),
+            "cached_positions": np.array([c.X_WS[:3, 3] for c in self.cache]).reshape(-1, 3),
+            "roi": (roi.lower, roi.upper),
+        }
+        return Proposal(candidates=[tree.poses[i] for i in order], info=info, debug=debug,
+                        candidate_info=[{"node_utility": float(utilities[i - 1])}
+                                        for i in order])
+
+    def accepted(self, index: int, observation: Observation) -> None:
+        self.iteration += 1
+
+    def restore(self, acquisitions: Sequence[Recorded]) -> None:
+        """The iteration count (one per acquisition a proposal led to) and the visited cells
+        (every recorded position, the last included, which `propose` would mark on its next
+        call; so it does not also mark wherever the arm is when the episode goes on).
+
+        Not rebuilt: the view cache, the sampler's random state and the utility's running
+        maxima, which came from maps that no longer exist; a restored LR-NBV therefore
+        continues validly but not as the uninterrupted run would have.
+        """
+        super().restore(acquisitions)
+        for a in acquisitions:
+            self.visited.visit(a.X_WS[:3, 3])
+        self._marked = len(acquisitions)

@@ -1,0 +1,236 @@
+"""The LR-NBV utility U = we*Ge + wd*Gd + wq*Gq + wv*Gv, evaluated for many sensor poses at once.
+
+Gains (paper, Section "Utility Function"; docs/algorithm.md maps every symbol here):
+
+- Rays: one per zone (optionally k x k per zone) from the sensor's zone geometry, r(t) = o + t*d
+  with |d| = `max_range`, sampled at t_k spaced one map cell apart.
+- Validity V(r, t_k): the sample lies in the ROI and no occupied cell comes before it on the
+  ray; the first occupied sample (the object surface) is itself valid, later ones are not.
+- Ge: sum over valid samples of W = the volume of the sample's cell when that cell is unknown
+  (the volumetric gain of Bircher et al.: unknown volume the view would traverse).
+- Gd: sum over valid samples of 1 / (1 + rho), rho the object points within r_d of the sample.
+- Gq: 1 / (1 + |x_T - x_object|).
+- Gv: -1 if the sensor position's cell of the coarse visited grid was visited, else 0.
+
+The map state inside the ROI is copied once per planning step into a small dense snapshot
+(`PlanningSnapshot`), so the kernel walks plain arrays and never touches the map.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+from lrnbv_drake.core.boxes import AlignedBox
+from lrnbv_drake.core.mapping import ray_box_interval
+from lrnbv_drake.core.planning.config import GainParams, UtilityWeights
+from lrnbv_drake.core.sensor import ZoneGeometry
+
+#: Cell states in a snapshot, as `OccupancyMap.classify` returns them (0 is free).
+UNKNOWN, OCCUPIED = -1, 1
+
+
+@dc.dataclass
+class PlanningSnapshot:
+    """The map inside the ROI as dense arrays, plus the object estimate.
+
+    Args:
+        roi: the region of interest.
+        origin: world position of the corner of cell (0, 0, 0).
+        resolution: cell size, metres.
+        state: (nx, ny, nz) int8, -1 unknown, 0 free, 1 occupied.
+        density: (nx, ny, nz) float32, object points within the density radius of each cell.
+        object_center: x_object for the quality gain.
+    """
+
+    roi: AlignedBox
+    origin: np.ndarray
+    resolution: float
+    state: np.ndarray
+    density: np.ndarray
+    object_center: np.ndarray
+
+
+def _sphere_kernel(radius_cells: float) -> np.ndarray:
+    r = int(np.floor(radius_cells))
+    ax = np.arange(-r, r + 1)
+    x, y, z = np.meshgrid(ax, ax, ax, indexing="ij")
+    return (x**2 + y**2 + z**2 <= radius_cells**2 + 1e-9).astype(np.float32)
+
+
+def make_snapshot(occupancy, roi: AlignedBox, object_points: np.ndarray,
+                  object_center: np.ndarray, density_radius: float) -> PlanningSnapshot:
+    """Copies the map's cells inside `roi` and counts object points around each cell.
+
+    Args:
+        occupancy: an `OccupancyMap` (anything with `resolution` and `classify(points)`).
+        roi: region of interest, snapped outwards to whole cells.
+        object_points: (N, 3) centres of the object's cells.
+        object_center: the object's estimated centre.
+        density_radius: r_d of the density gain, metres.
+    """
+    res = float(occupancy.resolution)
+    lo = np.floor(roi.lower / res).astype(np.int64)
+    hi = np.ceil(roi.upper / res).astype(np.int64)
+    shape = tuple(int(n) for n in np.maximum(hi - lo, 1))
+    origin = lo * res
+    idx = np.indices(shape).reshape(3, -1).T
+    centers = origin + (idx + 0.5) * res
+    state = occupancy.classify(centers).reshape(shape).astype(np.int8)
+    counts = np.zeros(shape, np.float32)
+    pts = np.asarray(object_points, float).reshape(-1, 3)
+    if len(pts):
+        cells = np.floor((pts - origin) / res).astype(np.int64)
+        inside = np.all((cells >= 0) & (cells < shape), axis=1)
+        np.add.at(counts, tuple(cells[inside].T), 1.0)
+    # rho(cell) = object points within r_d of the cell centre (a sphere of cells).
+    density = ndimage.convolve(counts, _sphere_kernel(density_radius / res), mode="constant")
+    return PlanningSnapshot(roi=roi, origin=origin, resolution=res, state=state,
+                            density=density.astype(np.float32),
+                            object_center=np.asarray(object_center, float))
+
+
+def sensor_rays(geometry: ZoneGeometry, rays_per_zone: int = 1) -> np.ndarray:
+    """(R, 3) unit ray directions in the sensor frame, one per zone (or k x k per zone)."""
+    d = geometry.sub_directions(rays_per_zone).reshape(-1, 3)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+@numba.njit(cache=True)
+def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state, density,
+                      out_ge, out_gd):
+    nx, ny, nz = state.shape
+    cell_volume = res * res * res
+    for p in range(poses.shape[0]):
+        o = poses[p, :3, 3]
+        rotation = np.ascontiguousarray(poses[p, :3, :3])
+        ge = 0.0
+        gd = 0.0
+        for r in range(rays.shape[0]):
+            d = rotation @ rays[r]
+            t0, t1 = ray_box_interval(o, d, 0.0, max_range, roi_lo, roi_hi)
+            if t1 <= t0:
+                continue
+            # Samples one cell apart (t in metres: the paper's t is t / max_range), from where
+            # the ray enters the ROI.
+            t = t0 + 0.5 * res
+            while t < t1:
+                x = o + t * d
+                i = int(np.floor((x[0] - origin[0]) / res))
+                j = int(np.floor((x[1] - origin[1]) / res))
+                k = int(np.floor((x[2] - origin[2]) / res))
+                t += res
+                if i < 0 or j < 0 or k < 0 or i >= nx or j >= ny or k >= nz:
+                    continue
+                s = state[i, j, k]
+                if s == UNKNOWN:
+                    ge += cell_volume
+                gd += 1.0 / (1.0 + density[i, j, k])
+                if s == OCCUPIED:  # the surface is seen; nothing behind it is
+                    break
+        out_ge[p] = ge
+        out_gd[p] = gd
+
+
+@dc.dataclass
+class Gains:
+    """Raw gains of a batch of poses, each (P,)."""
+
+    exploration: np.ndarray
+    density: np.ndarray
+    quality: np.ndarray
+    visited: np.ndarray
+
+    def _fields(self) -> tuple[np.ndarray, ...]:
+        # Not dataclasses.astuple, which deep-copies every array.
+        return self.exploration, self.density, self.quality, self.visited
+
+    def take(self, index) -> Gains:
+        """The gains of a subset of the poses."""
+        return Gains(*(np.atleast_1d(g[index]) for g in self._fields()))
+
+    @staticmethod
+    def concatenate(parts: list[Gains]) -> Gains:
+        if not parts:
+            return Gains(*(np.zeros(0) for _ in range(4)))
+        return Gains(*(np.concatenate(g) for g in zip(*(p._fields() for p in parts),
+                                                       strict=True)))
+
+
+def ray_gains(poses: np.ndarray, snapshot: PlanningSnapshot, rays: np.ndarray,
+              max_range: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ge and Gd of each pose (P, 4, 4): the two ray-casting gains."""
+    poses = np.ascontiguousarray(np.asarray(poses, np.float64).reshape(-1, 4, 4))
+    ge = np.zeros(len(poses))
+    gd = np.zeros(len(poses))
+    _ray_gains_kernel(poses, np.ascontiguousarray(rays, dtype=np.float64), float(max_range),
+                      snapshot.roi.lower.astype(np.float64), snapshot.roi.upper.astype(np.float64),
+                      snapshot.origin.astype(np.float64), snapshot.resolution, snapshot.state,
+                      snapshot.density, ge, gd)
+    return ge, gd
+
+
+class VisitedGrid:
+    """The coarse grid of sensor positions already used for an acquisition (Gv)."""
+
+    def __init__(self, cell_size: float = 0.18):
+        if not cell_size > 0:
+            raise ValueError(f"visited cell size must be > 0; got {cell_size}")
+        self.cell_size = cell_size
+        self._cells: set[tuple[int, int, int]] = set()
+
+    def _keys(self, positions: np.ndarray) -> np.ndarray:
+        return np.floor(np.asarray(positions, float).reshape(-1, 3) / self.cell_size).astype(
+            np.int64)
+
+    def visit(self, position: np.ndarray) -> None:
+        self._cells.add(tuple(int(v) for v in self._keys(position)[0]))
+
+    def visited(self, positions: np.ndarray) -> np.ndarray:
+        """(P,) bool: whether each position's cell was visited."""
+        return np.array([tuple(k) in self._cells for k in self._keys(positions).tolist()],
+                        dtype=bool)
+
+    def __len__(self) -> int:
+        return len(self._cells)
+
+
+def evaluate_gains(poses: np.ndarray, snapshot: PlanningSnapshot, rays: np.ndarray,
+                   visited: VisitedGrid, params: GainParams) -> Gains:
+    """The four raw gains for each pose (P, 4, 4)."""
+    poses = np.asarray(poses, float).reshape(-1, 4, 4)
+    ge, gd = ray_gains(poses, snapshot, rays, params.max_range)
+    distance = np.linalg.norm(poses[:, :3, 3] - snapshot.object_center, axis=1)
+    gq = 1.0 / (1.0 + distance)
+    gv = -visited.visited(poses[:, :3, 3]).astype(float)
+    return Gains(exploration=ge, density=gd, quality=gq, visited=gv)
+
+
+class UtilityFunction:
+    """U from raw gains, with the running maxima used for normalisation.
+
+    The maxima only grow, so a utility computed now is comparable with any other computed now:
+    cached nodes keep their raw gains and are scored again whenever they are compared.
+    """
+
+    def __init__(self, weights: UtilityWeights, normalize: bool = True):
+        self.weights = weights
+        self.normalize = normalize
+        self._max = np.full(3, 1e-12)
+
+    def observe(self, gains: Gains) -> None:
+        """Raises the running maxima with newly evaluated gains."""
+        if len(gains.exploration):
+            self._max = np.maximum(self._max, [gains.exploration.max(), gains.density.max(),
+                                               gains.quality.max()])
+
+    def __call__(self, gains: Gains) -> np.ndarray:
+        w = self.weights
+        scale = self._max if self.normalize else np.ones(3)
+        return (w.exploration * gains.exploration / scale[0]
+                + w.density * gains.density / scale[1]
+                + w.quality * gains.quality / scale[2]
+                + w.visited * gains.visited)

@@ -1,0 +1,280 @@
+"""The UR5e's safety logic, free of Drake and of the network: what a controller reading means
+(`Ur5eStatus`, `read_status`), which faults stop the arm and what to do about each
+(`RobotFault`), and the checks every joint command must pass before it is sent
+(`SafetyLimits`). The drivers (`lrnbv_drake.drivers`) implement `RobotInterface`; the systems
+(`Ur5eStatusReceiver`, `Ur5eCommandSender`) call what is here.
+
+Frames (docs/hardware.md): `getActualTCPPose()` is `tool0` in the controller's `base` frame,
+which is `base_link * Rz(pi)` of the model, with a zero TCP offset on the pendant.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+from collections.abc import Sequence
+from typing import Protocol
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from lrnbv_drake.core import kinematics
+
+ROBOT_MODES = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING",
+               3: "POWER_OFF", 4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING",
+               8: "UPDATING_FIRMWARE"}
+ROBOT_MODE_RUNNING = 7
+#: RTDE `safety_mode` values (ur_dashboard_msgs/SafetyMode).
+SAFETY_MODES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY",
+                5: "SAFEGUARD_STOP", 6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP",
+                8: "VIOLATION", 9: "FAULT", 10: "VALIDATE_JOINT_ID", 11: "UNDEFINED_SAFETY_MODE",
+                12: "AUTOMATIC_MODE_SAFEGUARD_STOP", 13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}
+#: Safety modes in which the arm may move.
+SAFETY_MODES_OK = (1, 2)
+RESUME_HINT = "then continue the episode with `lrnbv hardware --resume OUT_DIR`"
+
+
+class RobotConnectionError(RuntimeError):
+    """ur_rtde could not connect; the message lists the usual causes."""
+
+
+class RobotFault(RuntimeError):
+    """The robot cannot or must not go on.
+
+    Attributes:
+        kind: "protective_stop", "emergency_stop", "safeguard_stop", "safety_mode",
+            "not_running", "script_stopped", "disconnected" or "refused" (a command failed a
+            safety check).
+    """
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+class RobotInterface(Protocol):
+    """The ur_rtde calls the drivers use, in snake case (`get_actual_q` is `getActualQ`)."""
+
+    def get_actual_q(self) -> Sequence[float]: ...
+    def get_actual_qd(self) -> Sequence[float]: ...
+    def get_actual_tcp_pose(self) -> Sequence[float]: ...
+    def get_timestamp(self) -> float: ...
+    def get_robot_mode(self) -> int: ...
+    def get_safety_mode(self) -> int: ...
+    def is_protective_stopped(self) -> bool: ...
+    def is_emergency_stopped(self) -> bool: ...
+    def is_connected(self) -> bool: ...
+    def is_program_running(self) -> bool: ...
+    def servo_j(self, q: Sequence[float], speed: float, acceleration: float, time: float,
+                lookahead_time: float, gain: float) -> bool: ...
+    def servo_stop(self, deceleration: float) -> bool: ...
+    def disconnect(self) -> None: ...
+
+
+def tcp_pose_from_q(q: Sequence[float]) -> np.ndarray:
+    """`tool0` in `base` as the controller reports it: [x, y, z, rx, ry, rz] (rotation vector)."""
+    X = kinematics.forward_kinematics(np.asarray(q, float))
+    return np.r_[X[:3, 3], Rotation.from_matrix(X[:3, :3]).as_rotvec()]
+
+
+def tcp_pose_error(q: Sequence[float], tcp_pose: Sequence[float]) -> tuple[float, float]:
+    """(metres, radians) between the controller's TCP pose and our `tool0` at the same joints.
+
+    Anything beyond noise means the pendant has a TCP offset set or the model's frames do not
+    match the controller's (docs/hardware.md, frames)."""
+    expected = kinematics.forward_kinematics(np.asarray(q, float))
+    tcp_pose = np.asarray(tcp_pose, float)
+    R_error = Rotation.from_matrix(expected[:3, :3]).inv() * Rotation.from_rotvec(tcp_pose[3:])
+    return (float(np.linalg.norm(tcp_pose[:3] - expected[:3, 3])),
+            float(R_error.magnitude()))
+
+
+# --- Status ----------------------------------------------------------------------------------
+
+
+@dc.dataclass(frozen=True)
+class Ur5eStatus:
+    """One reading of the controller.
+
+    Attributes:
+        time: diagram time of the reading, seconds.
+        q, qd: actual joint positions (rad) and speeds (rad/s).
+        tcp_pose: `getActualTCPPose()`, [x, y, z, rx, ry, rz] in the controller's `base`.
+        controller_time: `getTimestamp()`, seconds since the controller started.
+        fresh_since: diagram time at which `controller_time` last advanced.
+        robot_mode, safety_mode: RTDE's codes (`ROBOT_MODES`, `SAFETY_MODES`).
+        protective_stop, emergency_stop: the controller's flags.
+        connected: the RTDE link is up and delivering new data.
+        program_running: ur_rtde's control script runs (it executes the servoJ targets).
+        error: why the reading failed, if it did.
+    """
+
+    time: float = 0.0
+    q: np.ndarray = dc.field(default_factory=lambda: np.zeros(6))
+    qd: np.ndarray = dc.field(default_factory=lambda: np.zeros(6))
+    tcp_pose: np.ndarray = dc.field(default_factory=lambda: np.zeros(6))
+    controller_time: float = 0.0
+    fresh_since: float = 0.0
+    robot_mode: int = -1
+    safety_mode: int = 11
+    protective_stop: bool = False
+    emergency_stop: bool = False
+    connected: bool = False
+    program_running: bool = False
+    error: str = ""
+
+    def fault(self, robot_ip: str = "the robot") -> RobotFault | None:
+        """What stops the robot, with what to do about it; None if it may move."""
+        if not self.connected:
+            return RobotFault("disconnected", (
+                f"lost the RTDE connection to {robot_ip}"
+                + (f" ({self.error})" if self.error else "")
+                + f". The robot stops by itself when the control script loses its client. "
+                f"Check the network cable and the controller, {RESUME_HINT}"))
+        if self.emergency_stop or self.safety_mode in (6, 7):
+            return RobotFault("emergency_stop", (
+                f"emergency stop on {robot_ip} (safety mode "
+                f"{SAFETY_MODES.get(self.safety_mode, self.safety_mode)}). Make the cell safe, "
+                f"release the emergency stop button, power the arm on and release the brakes "
+                f"on the pendant, {RESUME_HINT}"))
+        if self.protective_stop or self.safety_mode == 3:
+            return RobotFault("protective_stop", (
+                f"protective stop on {robot_ip}: the arm hit something or exceeded a safety "
+                f"limit. Look at the cell and the pendant's log, clear the stop on the pendant "
+                f"(or the dashboard's `unlock protective stop`), {RESUME_HINT}"))
+        if self.safety_mode in (5, 12, 13):
+            return RobotFault("safeguard_stop", (
+                f"safeguard stop on {robot_ip} ({SAFETY_MODES[self.safety_mode]}): a safety "
+                f"input (door, light curtain, enabling device) stopped the arm. Clear the "
+                f"input, {RESUME_HINT}"))
+        if self.safety_mode not in SAFETY_MODES_OK:
+            return RobotFault("safety_mode", (
+                f"{robot_ip} is in safety mode "
+                f"{SAFETY_MODES.get(self.safety_mode, self.safety_mode)}, in which the arm "
+                f"must not move. Resolve it on the pendant, {RESUME_HINT}"))
+        if self.robot_mode != ROBOT_MODE_RUNNING:
+            return RobotFault("not_running", (
+                f"{robot_ip} is not running (robot mode "
+                f"{ROBOT_MODES.get(self.robot_mode, self.robot_mode)}). Power the arm on and "
+                f"release the brakes on the pendant, {RESUME_HINT}"))
+        if not self.program_running:
+            return RobotFault("script_stopped", (
+                f"ur_rtde's control script is not running on {robot_ip} (stopped from the "
+                f"pendant, or ended by a stop), so servoJ commands would be ignored. "
+                f"Check the pendant, {RESUME_HINT} (a new connection uploads the script)"))
+        return None
+
+
+def read_status(robot: RobotInterface, time: float, previous: Ur5eStatus,
+                rtde_timeout: float = 0.5) -> Ur5eStatus:
+    """Reads the controller once (ur_rtde's getters return its latest packet; none blocks).
+
+    The link counts as lost when the robot says so, when a getter raises, or when the
+    controller's timestamp has not advanced for `rtde_timeout` seconds of diagram time (a
+    silent network drop keeps the last packet forever). On a failed reading the joints keep
+    their previous values. Pass `Ur5eStatus()` as `previous` for the first reading.
+    """
+    try:
+        status = Ur5eStatus(
+            time=time,
+            q=np.array(robot.get_actual_q(), float),
+            qd=np.array(robot.get_actual_qd(), float),
+            tcp_pose=np.array(robot.get_actual_tcp_pose(), float),
+            controller_time=float(robot.get_timestamp()),
+            robot_mode=int(robot.get_robot_mode()),
+            safety_mode=int(robot.get_safety_mode()),
+            protective_stop=bool(robot.is_protective_stopped()),
+            emergency_stop=bool(robot.is_emergency_stopped()),
+            connected=bool(robot.is_connected()),
+            program_running=bool(robot.is_program_running()),
+        )
+    except RuntimeError as e:
+        return dc.replace(previous, time=time, connected=False, qd=np.zeros(6),
+                          error=f"reading the controller failed: {e}")
+    if status.q.shape != (6,):
+        return dc.replace(previous, time=time, connected=False, qd=np.zeros(6),
+                          error=f"the controller sent {status.q.size} joint positions")
+    fresh_since = time if status.controller_time != previous.controller_time \
+        else previous.fresh_since
+    status = dc.replace(status, fresh_since=fresh_since)
+    if status.connected and time - fresh_since > rtde_timeout:
+        status = dc.replace(status, connected=False, error=(
+            f"no new RTDE data for {time - fresh_since:.2f} s"))
+    return status
+
+
+# --- Commands --------------------------------------------------------------------------------
+
+
+@dc.dataclass(frozen=True)
+class SafetyLimits:
+    """What a joint command must satisfy before it is sent.
+
+    Attributes:
+        joint_lower, joint_upper: (6,) joint limits, rad.
+        max_velocity, max_acceleration: (6,) caps on the commanded motion, rad/s and rad/s^2.
+        jump_tolerance: how much further than the caps a single step may go, rad.
+        max_tracking_error: largest |command - measured| on any joint, rad.
+        X_W_base: (4, 4) the controller's `base` frame in world.
+        X_tool0_S: (4, 4) the sensor frame in `tool0`.
+        workspace_lower, workspace_upper: (3,) box the sensor origin must stay in, world, m.
+        min_sensor_z: lowest sensor origin height, world, m (table top plus clearance).
+    """
+
+    joint_lower: np.ndarray
+    joint_upper: np.ndarray
+    max_velocity: np.ndarray
+    max_acceleration: np.ndarray
+    jump_tolerance: float
+    max_tracking_error: float
+    X_W_base: np.ndarray
+    X_tool0_S: np.ndarray
+    workspace_lower: np.ndarray
+    workspace_upper: np.ndarray
+    min_sensor_z: float
+
+    def sensor_position(self, q: np.ndarray) -> np.ndarray:
+        """The sensor origin in world at joints q."""
+        X = self.X_W_base @ kinematics.forward_kinematics(q) @ self.X_tool0_S
+        return X[:3, 3]
+
+    def check(self, q: np.ndarray, q_previous: np.ndarray, v_previous: np.ndarray,
+              q_measured: np.ndarray, dt: float) -> str | None:
+        """Why command q (sent dt after q_previous, which moved at v_previous) is refused, or
+        None if it is fine."""
+        q = np.asarray(q, float)
+        names = kinematics.JOINT_NAMES
+        if not np.all(np.isfinite(q)):
+            return f"the command {q.tolist()} is not finite"
+        outside = np.flatnonzero((q < self.joint_lower) | (q > self.joint_upper))
+        if outside.size:
+            i = outside[0]
+            return (f"{names[i]} command {q[i]:.3f} rad is outside its limits "
+                    f"[{self.joint_lower[i]:.3f}, {self.joint_upper[i]:.3f}]")
+        step = q - q_previous
+        too_fast = np.flatnonzero(np.abs(step) > self.max_velocity * dt + self.jump_tolerance)
+        if too_fast.size:
+            i = too_fast[0]
+            return (f"{names[i]} command steps {step[i]:+.4f} rad in {dt * 1e3:.1f} ms "
+                    f"({step[i] / dt:+.2f} rad/s), above the {self.max_velocity[i]:.2f} rad/s "
+                    f"cap")
+        change = step - v_previous * dt
+        too_sudden = np.flatnonzero(np.abs(change) > self.max_acceleration * dt ** 2
+                                    + self.jump_tolerance)
+        if too_sudden.size:
+            i = too_sudden[0]
+            return (f"{names[i]} command changes speed by {change[i] / dt:+.2f} rad/s in "
+                    f"{dt * 1e3:.1f} ms, above the {self.max_acceleration[i]:.2f} rad/s^2 cap")
+        error = np.abs(q - q_measured)
+        if error.max() > self.max_tracking_error:
+            i = int(np.argmax(error))
+            return (f"{names[i]} command is {error[i]:.3f} rad from the measured joint (at most "
+                    f"{self.max_tracking_error:.3f}): the arm is not where the plan assumes")
+        p = self.sensor_position(q)
+        if np.any(p < self.workspace_lower) or np.any(p > self.workspace_upper):
+            return (f"the sensor would be at {np.round(p, 3).tolist()}, outside the safety box "
+                    f"{np.round(self.workspace_lower, 3).tolist()} .. "
+                    f"{np.round(self.workspace_upper, 3).tolist()}")
+        if p[2] < self.min_sensor_z:
+            return (f"the sensor would be {p[2]:.3f} m high, below the {self.min_sensor_z:.3f} m "
+                    f"the table clearance allows")
+        return None

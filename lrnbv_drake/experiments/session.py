@@ -1,0 +1,520 @@
+"""Running an episode on the real cell: confirmation, crash-safe recording, faults and resume.
+
+`run_session` checks the robot's current pose against the model, asks for an explicit
+confirmation, builds the episode with the hardware cell (`build_episode(..., hardware=True)`)
+and runs it in real time. The output folder fills up as the episode goes:
+
+- `session.json`    the scenario actually used (YAML), the planner, and one entry per run
+                    (start joints, wall time, acquisitions already recorded);
+- `acquisitions.jsonl`  one JSON line per acquisition (frame, sensor pose, joints, time, the
+                    planner's info), appended and fsynced as soon as the planner logs it, which
+                    is before it plans the next motion;
+- `map.ot`          the occupancy map (OctoMap .ot, exact log-odds) after each insertion,
+                    replaced atomically;
+- `frames.npz`, `report.json`, `replay.html`  written at the end, also after a fault.
+
+A protective stop, an emergency stop, a lost connection, a refused command, a silent sensor or
+Ctrl-C stops the arm, saves, and ends the run with a message that says what happened and what
+to do. `resume(out_dir)` then continues the episode from wherever the arm is now (see its
+docstring for what it rebuilds).
+
+Dry run (`dry_run=True`): the hardware diagram with no hardware. The `PlaybackRobot` plays
+every command back as the measured joints (each command still passes the sender's checks) and
+the `SimulatedToFBoard` renders frames of the scenario's modelled cell through the real serial
+driver. Meshcat shows every planned motion; nothing moves. It connects to the robot only to
+read where it is (read-only RTDE), when `robot.robot_ip` is set, so the preview starts from
+the real pose. It runs in real time, so it also rehearses the timing.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import json
+import logging
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydrake.common.yaml import yaml_dump_typed
+from pydrake.geometry import Meshcat
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import Context, EventStatus
+
+from lrnbv_drake.core.robot_safety import RobotFault, Ur5eStatus, read_status, tcp_pose_error
+from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.drivers.rtde_robot import RtdeRobot
+from lrnbv_drake.drivers.tof_serial import SensorError, ToFSerialReader
+from lrnbv_drake.experiments.episode import (
+    MAX_EPISODE_SECONDS,
+    PLANNERS,
+    EpisodeDiagram,
+    build_episode,
+    save_frames,
+)
+from lrnbv_drake.station.cell import zone_geometry
+from lrnbv_drake.station.hardware_cell import check_hardware_config, safety_limits
+from lrnbv_drake.station.motion import MotionPlanner
+from lrnbv_drake.station.scenario import Scenario, load_scenario
+from lrnbv_drake.systems.acquisition_loop import Acquisition, EpisodeLog
+
+_log = logging.getLogger(__name__)
+
+SESSION_FILE = "session.json"
+JOURNAL_FILE = "acquisitions.jsonl"
+MAP_FILE = "map.ot"
+#: When the diagram falls this far behind the wall clock (a long planning step), the
+#: realtime pacing restarts from now instead of racing to catch up: catching up would play
+#: the trajectory faster than planned.
+MAX_REALTIME_LAG = 0.02
+#: A controller TCP pose this far from our tool0 (m, rad) is reported before the first motion.
+TCP_WARN = (0.002, 0.01)
+#: Longest wait for a frame when checking the sensor before the first motion, seconds (a board
+#: may reset when its port is opened).
+SENSOR_CHECK_TIMEOUT = 5.0
+
+Confirm = Callable[[str], bool]
+
+
+class SessionError(RuntimeError):
+    """The session cannot start (or resume) as asked; nothing has moved."""
+
+
+@dc.dataclass
+class SessionResult:
+    """What a session did.
+
+    Attributes:
+        out_dir: the output folder.
+        termination: why it ended, as a sentence (the fault's message after a fault).
+        fault: None when the planner ended the episode; else "declined", "interrupted",
+            "sensor", "error" (an unexpected exception, raised after saving) or a
+            `RobotFault.kind`.
+        log: the planner's log, recorded acquisitions first after a resume.
+        resumed_from: acquisitions recorded before this run.
+        realtime_resets: times the realtime pacing was restarted after a lag.
+    """
+
+    out_dir: Path
+    termination: str
+    fault: str | None
+    log: EpisodeLog
+    resumed_from: int = 0
+    realtime_resets: int = 0
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.log.acquisitions)
+
+
+# --- Recording -------------------------------------------------------------------------------
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot record a {type(value).__name__} in JSON")
+
+
+def acquisition_to_json(a: Acquisition) -> str:
+    """One journal line (no newline)."""
+    f = a.frame
+    return json.dumps({
+        "index": a.index, "time": a.time, "q": a.q, "X_WS": a.X_WS,
+        "frame": {"sequence": f.sequence, "timestamp_us": f.timestamp_us,
+                  "distance_mm": f.distance_mm, "status": f.status, "sigma_mm": f.sigma_mm},
+        "info": a.info,
+    }, default=_json_default)
+
+
+def acquisition_from_json(line: str) -> Acquisition:
+    d = json.loads(line)
+    f = d["frame"]
+    frame = ToFFrame(distance_mm=np.array(f["distance_mm"]), status=np.array(f["status"]),
+                     sigma_mm=np.array(f["sigma_mm"]), sequence=f["sequence"],
+                     timestamp_us=f["timestamp_us"])
+    return Acquisition(index=d["index"], time=d["time"], q=np.array(d["q"], float),
+                       X_WS=np.array(d["X_WS"], float), frame=frame, info=d["info"])
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    with tmp.open("w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+class AcquisitionJournal:
+    """`acquisitions.jsonl`: an append-only file with one acquisition per line, each fsynced
+    before `append` returns, so a crash loses at most the line being written."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def append(self, acquisition: Acquisition) -> None:
+        with self.path.open("a") as f:
+            f.write(acquisition_to_json(acquisition) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+    def load(self) -> list[Acquisition]:
+        """The recorded acquisitions; a torn last line (a crash mid-write) is dropped."""
+        if not self.path.exists():
+            return []
+        lines = self.path.read_text().splitlines()
+        acquisitions = []
+        for i, line in enumerate(lines):
+            try:
+                acquisitions.append(acquisition_from_json(line))
+            except (json.JSONDecodeError, KeyError, ValueError) as e:
+                if i == len(lines) - 1:
+                    _log.warning("%s: dropping a torn last line (%s)", self.path, e)
+                    break
+                raise SessionError(f"{self.path}, line {i + 1}: not an acquisition ({e})") \
+                    from e
+        return acquisitions
+
+
+class SessionMonitor:
+    """The Simulator's monitor for a hardware run: after every step it appends the planner's
+    new acquisitions to the journal and snapshots the map after each insertion, and it
+    restarts the realtime pacing when the diagram lags the wall clock."""
+
+    def __init__(self, simulator: Simulator, parts: EpisodeDiagram, out_dir: Path,
+                 recorded: int) -> None:
+        self._simulator = simulator
+        self._planner = parts.planner
+        self._map = parts.map_system.occupancy_map
+        self._journal = AcquisitionJournal(out_dir / JOURNAL_FILE)
+        self._map_path = out_dir / MAP_FILE
+        self._written = recorded
+        self._map_scans = self._map.n_scans
+        self._pace: tuple[float, float] | None = None
+        self.realtime_resets = 0
+
+    def __call__(self, root_context: Context) -> EventStatus:
+        self.record(root_context)
+        self._keep_pace(root_context)
+        return EventStatus.Succeeded()
+
+    def record(self, root_context: Context) -> None:
+        """Writes what has not been written yet."""
+        log: EpisodeLog = self._planner.GetOutputPort("log").Eval(
+            self._planner.GetMyContextFromRoot(root_context))
+        for acquisition in log.acquisitions[self._written:]:
+            self._journal.append(acquisition)
+            self._written += 1
+        if self._map.n_scans != self._map_scans:
+            tmp = self._map_path.with_name(f".{self._map_path.stem}.tmp.ot")
+            self._map.export_octomap(tmp)
+            with tmp.open("rb") as f:
+                os.fsync(f.fileno())
+            os.replace(tmp, self._map_path)
+            _fsync_dir(self._map_path.parent)
+            self._map_scans = self._map.n_scans
+
+    def _keep_pace(self, root_context: Context) -> None:
+        now, t = time.monotonic(), root_context.get_time()
+        if self._pace is not None:
+            wall0, t0 = self._pace
+            if (now - wall0) - (t - t0) <= MAX_REALTIME_LAG:
+                return
+            self._simulator.ResetStatistics()
+            self.realtime_resets += 1
+        self._pace = (now, t)
+
+
+# --- Starting and resuming -------------------------------------------------------------------
+
+
+def _read_robot(scenario: Scenario, must_be_ready: bool) -> np.ndarray:
+    """The arm's joints now, read over read-only RTDE (no control script, nothing moves).
+
+    With `must_be_ready`, a robot in a stop or not running raises its RobotFault."""
+    hw = scenario.hardware
+    probe = RtdeRobot(scenario.robot.robot_ip, frequency=hw.rtde_frequency,
+                      upper_range_registers=hw.upper_range_registers, control=False)
+    try:
+        status = read_status(probe, 0.0, Ur5eStatus(), hw.rtde_timeout)
+    finally:
+        probe.disconnect()
+    fault = status.fault(scenario.robot.robot_ip)
+    # The read-only probe has no control script; the real connection uploads it.
+    if must_be_ready and fault is not None and fault.kind != "script_stopped":
+        raise fault
+    dp, dr = tcp_pose_error(status.q, status.tcp_pose)
+    if dp > TCP_WARN[0] or dr > TCP_WARN[1]:
+        _log.warning("the controller's TCP pose is %.1f mm and %.2f deg from the model's tool0 "
+                     "at the same joints: is a TCP offset set on the pendant? The planner "
+                     "only uses the joints, but check the frames (docs/hardware.md)",
+                     dp * 1e3, np.rad2deg(dr))
+    return status.q
+
+
+def _preflight(scenario: Scenario, q: np.ndarray) -> None:
+    """Refuses to start from joints the model says collide or the sender would refuse."""
+    motion = MotionPlanner(scenario)
+    if not motion.collision_free(q):
+        raise SessionError(
+            f"the arm's current joints {np.round(q, 3).tolist()} collide with the modelled "
+            f"cell (table, object, itself): either the scenario does not describe the cell, or "
+            f"the arm must first be jogged to a free pose")
+    limits = safety_limits(scenario, motion.X_W_base, motion.X_tool0_S)
+    reason = limits.check(q, q, np.zeros(6), q, scenario.hardware.servo_period)
+    if reason is not None:
+        raise SessionError(f"cannot start from the arm's current joints: {reason}; jog the "
+                           f"arm into the workspace first")
+
+
+def _check_sensor(scenario: Scenario) -> None:
+    """Waits for one frame from the serial sensor, so that the arm never moves blind.
+
+    Raises:
+        SensorTimeout: naming the port and what the driver saw.
+    """
+    s = scenario.sensor
+    with ToFSerialReader(s.serial_port, s.baud) as sensor:
+        sensor.wait_for_frame(0, timeout=SENSOR_CHECK_TIMEOUT)
+
+
+def _confirmation_text(scenario: Scenario, planner: str, out_dir: Path) -> str:
+    r, c, hw = scenario.robot, scenario.cell, scenario.hardware
+    return (f"About to move the UR5e at {r.robot_ip} with the {planner} planner, up to "
+            f"{scenario.max_poses} poses, joints at most {np.rad2deg(np.pi * r.speed_fraction):.0f}"
+            f" deg/s (refused above {np.rad2deg(np.pi * hw.max_speed_fraction):.0f}).\n"
+            f"The sensor stays in {c.workspace_lower} .. {c.workspace_upper} m (world, "
+            f"+{hw.workspace_margin} m along motions) and {hw.min_table_clearance} m above the "
+            f"table. Frames: {scenario.sensor.serial_port}. Recording to {out_dir}.\n"
+            f"Keep a hand on the emergency stop.")
+
+
+def _restore(parts: EpisodeDiagram, scenario: Scenario, recorded: list[Acquisition],
+             root_context: Context) -> None:
+    """Brings the map and the policy of an episode built with the recorded acquisitions as
+    its planner's history up to them (see `resume`)."""
+    m = scenario.mapping
+    occupancy = parts.map_system.occupancy_map
+    geometry = zone_geometry(scenario)
+    for a in recorded:
+        occupancy.insert_frame(a.frame, geometry, a.X_WS, mode=m.insertion,
+                               max_range=m.max_range if m.max_range > 0 else None,
+                               cone_k=m.cone_subrays, free_no_target=m.free_no_target)
+    # The planner shows the last recorded frame until its next capture: already in the map.
+    parts.map_system.mark_inserted(parts.map_system.GetMyMutableContextFromRoot(root_context),
+                                   recorded[-1].frame.sequence)
+    parts.policy.restore(recorded)
+
+
+def _write_session(out_dir: Path, scenario: Scenario, planner: str, dry_run: bool,
+                   q_start: np.ndarray, recorded: int) -> None:
+    path = out_dir / SESSION_FILE
+    session = json.loads(path.read_text()) if path.exists() else {
+        "planner": planner, "dry_run": dry_run, "scenario": yaml_dump_typed(scenario),
+        "runs": []}
+    session["runs"].append({"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                            "q_start": q_start.tolist(), "recorded_before": recorded})
+    _write_atomically(path, json.dumps(session, indent=2))
+
+
+def _report(result: SessionResult, planner: str, scenario: Scenario, dry_run: bool,
+            wall_seconds: float) -> dict[str, Any]:
+    episode_log = result.log
+    return {
+        "planner": planner,
+        "dry_run": dry_run,
+        "robot_ip": scenario.robot.robot_ip,
+        "sensor_port": scenario.sensor.serial_port,
+        "termination": result.termination,
+        "fault": result.fault,
+        "n_poses": result.n_poses,
+        "resumed_from": result.resumed_from,
+        "realtime_resets": result.realtime_resets,
+        "wall_seconds": wall_seconds,
+        "poses": [{"index": a.index, "time": a.time, "q": a.q.tolist(),
+                   "X_WS": a.X_WS.tolist(), "n_valid_zones": int(a.frame.valid.sum()),
+                   "info": a.info} for a in episode_log.acquisitions],
+        "motion_failures": [{"time": t, "position": X[:3, 3].tolist(), "failure": f,
+                             "reason": r} for t, X, f, r in episode_log.motion_failures],
+        "scenario": yaml_dump_typed(scenario),
+    }
+
+
+def run_session(scenario: Scenario, planner: str, out_dir: str | Path, *, confirm: Confirm,
+                meshcat: Meshcat | None = None, dry_run: bool = False) -> SessionResult:
+    """Runs one episode on the real cell (or, with `dry_run`, its rehearsal; see the module
+    docstring) and records it in `out_dir`, which must not hold a session already.
+
+    Args:
+        scenario: the cell; `robot.robot_ip` and `sensor.serial_port` name the hardware.
+        planner: "lrnbv", "nbv" or "heu".
+        out_dir: the output folder.
+        confirm: asked with a description of what is about to happen before anything can
+            move; the run goes ahead only if it returns True. Not asked in a dry run.
+        meshcat: live view, and a replay.html at the end.
+        dry_run: no robot moves and no sensor is read.
+
+    Raises:
+        SessionError, ScenarioError, RobotConnectionError, RobotFault: before anything moved.
+    """
+    out_dir = Path(out_dir)
+    if (out_dir / SESSION_FILE).exists():
+        raise SessionError(f"{out_dir} already holds a session: continue it with `lrnbv "
+                           f"hardware --resume {out_dir}` or choose another folder")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return _run(scenario, planner, out_dir, [], confirm, meshcat, dry_run)
+
+
+def resume(out_dir: str | Path, *, confirm: Confirm, meshcat: Meshcat | None = None,
+           robot_ip: str | None = None, sensor_port: str | None = None) -> SessionResult:
+    """Continues a recorded session from the arm's current pose.
+
+    Rebuilt from the folder: the scenario and planner (`session.json`); every recorded
+    acquisition, re-inserted into a fresh map in order (the same map the run had, as the map
+    is a function of the frames and poses) and the last one marked as inserted
+    (`OccupancyMapSystem.mark_inserted`); the planner's log, given as its `history` (so
+    `max_poses` and the acquisition count carry on, the report lists every pose, and it
+    starts by planning); the policy's progress (`ViewpointPolicy.restore`: HEU's next
+    ellipse pose, LR-NBV's iteration count and visited cells). Not rebuilt: LR-NBV's view
+    cache, its sampler's random state and its utility normaliser's running maxima start
+    fresh, and the motion failures, planning times and per-pose extractions of the earlier
+    runs are not in the new log. The resumed episode is therefore a faithful continuation for
+    HEU, and for LR-NBV a valid one that an uninterrupted run would not have reproduced
+    exactly. Diagram time carries on from the last recorded acquisition.
+
+    Args:
+        out_dir: a folder `run_session` wrote.
+        confirm, meshcat: as for `run_session` (a dry-run session resumes as a dry run).
+        robot_ip, sensor_port: replace the recorded ones (e.g. a renumbered USB port).
+    """
+    out_dir = Path(out_dir)
+    path = out_dir / SESSION_FILE
+    if not path.exists():
+        raise SessionError(f"{out_dir} holds no {SESSION_FILE}: nothing to resume")
+    session = json.loads(path.read_text())
+    scenario = load_scenario(data=session["scenario"])
+    if robot_ip is not None:
+        scenario = dc.replace(scenario, robot=dc.replace(scenario.robot, robot_ip=robot_ip))
+    if sensor_port is not None:
+        scenario = dc.replace(scenario, sensor=dc.replace(scenario.sensor,
+                                                          serial_port=sensor_port))
+    recorded = AcquisitionJournal(out_dir / JOURNAL_FILE).load()
+    return _run(scenario, session["planner"], out_dir, recorded, confirm, meshcat,
+                session["dry_run"])
+
+
+def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisition],
+         confirm: Confirm, meshcat: Meshcat | None, dry_run: bool) -> SessionResult:
+    if planner not in PLANNERS:
+        raise SessionError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
+    if dry_run:
+        scenario = dc.replace(scenario, hardware=dc.replace(
+            scenario.hardware, robot_driver="playback", sensor_driver="simulated"))
+    check_hardware_config(scenario)
+    if scenario.robot.robot_ip:
+        q_start = _read_robot(scenario, must_be_ready=not dry_run)
+    elif recorded:  # a dry run without a robot resumes at the last recorded pose
+        q_start = recorded[-1].q
+    else:
+        q_start = np.asarray(scenario.robot.initial_position, float)
+    _preflight(scenario, q_start)
+    if scenario.hardware.sensor_driver == "serial":
+        _check_sensor(scenario)
+    scenario = dc.replace(scenario, robot=dc.replace(scenario.robot,
+                                                     initial_position=q_start.tolist()))
+    if not dry_run and not confirm(_confirmation_text(scenario, planner, out_dir)):
+        return SessionResult(out_dir, "the operator did not confirm: nothing moved",
+                             "declined", EpisodeLog(acquisitions=list(recorded)),
+                             resumed_from=len(recorded))
+    _write_session(out_dir, scenario, planner, dry_run, q_start, len(recorded))
+
+    started = time.monotonic()
+    parts = build_episode(scenario, planner, meshcat, hardware=True,
+                          history=EpisodeLog(acquisitions=recorded) if recorded else None)
+    try:
+        run = _simulate(parts, scenario, recorded, out_dir)
+    finally:
+        parts.cell.hardware.close()
+    episode_log: EpisodeLog = parts.planner.GetOutputPort("log").Eval(
+        parts.planner.GetMyContextFromRoot(run.context))
+    termination = run.termination or episode_log.termination or (
+        f"stopped at the {MAX_EPISODE_SECONDS:.0f} s time limit")
+    result = SessionResult(out_dir, termination, run.fault, episode_log,
+                           resumed_from=len(recorded), realtime_resets=run.realtime_resets)
+    save_frames(out_dir / "frames.npz", episode_log)
+    report = _report(result, planner, scenario, dry_run, time.monotonic() - started)
+    report["sensor_stats"] = dc.asdict(parts.cell.hardware.sensor.stats)
+    _write_atomically(out_dir / "report.json", json.dumps(report, indent=2,
+                                                          default=_json_default))
+    visualizer = parts.cell.visualizer
+    if visualizer is not None:
+        visualizer.StopRecording()
+        visualizer.PublishRecording()
+        (out_dir / "replay.html").write_text(meshcat.StaticHtml())
+    if run.error is not None:
+        raise run.error
+    return result
+
+
+@dc.dataclass
+class _Run:
+    context: Context
+    fault: str | None = None
+    # The fault's message; empty when the planner ended the episode.
+    termination: str = ""
+    # An unexpected exception, raised again once everything is saved.
+    error: Exception | None = None
+    realtime_resets: int = 0
+
+
+def _simulate(parts: EpisodeDiagram, scenario: Scenario, recorded: list[Acquisition],
+              out_dir: Path) -> _Run:
+    """Runs the episode in real time until the planner ends it or something stops it; the
+    arm is stopped and every acquisition recorded whatever happens."""
+    simulator = Simulator(parts.diagram)
+    context = simulator.get_mutable_context()
+    if recorded:
+        context.SetTime(recorded[-1].time + 1.0)
+        _restore(parts, scenario, recorded, context)
+    monitor = SessionMonitor(simulator, parts, out_dir, len(recorded))
+    simulator.set_monitor(monitor)
+    simulator.set_target_realtime_rate(1.0)
+    if parts.cell.visualizer is not None:
+        parts.cell.visualizer.StartRecording(set_transforms_while_recording=True)
+    run = _Run(context)
+    try:
+        simulator.Initialize()
+        simulator.AdvanceTo(context.get_time() + MAX_EPISODE_SECONDS)
+    except RobotFault as e:
+        run.fault, run.termination = e.kind, str(e)
+    except SensorError as e:
+        run.fault, run.termination = "sensor", str(e)
+    except KeyboardInterrupt:
+        run.fault, run.termination = "interrupted", (
+            "interrupted by the operator (Ctrl-C); the arm was stopped. Continue with "
+            f"`lrnbv hardware --resume {out_dir}`")
+    except Exception as e:  # saved like any fault, then raised again by the caller
+        run.fault, run.termination, run.error = "error", f"{type(e).__name__}: {e}", e
+    finally:
+        if run.fault != "disconnected":
+            try:
+                parts.cell.hardware.robot.servo_stop(scenario.hardware.stop_deceleration)
+            except RuntimeError as e:
+                _log.warning("stopping the arm failed: %s", e)
+        monitor.record(context)
+    run.realtime_resets = monitor.realtime_resets
+    return run

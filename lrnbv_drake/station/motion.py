@@ -1,0 +1,179 @@
+"""Moving the sensor to a pose: analytic IK, collision checks in SceneGraph, a limited trajectory.
+
+For a target sensor pose the planner takes every IK branch, nearest to the current joints first,
+and keeps the first one whose configuration and straight joint-space path are collision free
+(robot against table, object and itself, with padding). If no straight path is free it tries
+the path through the home configuration. The result is a typed `MotionPlan`: a failure says
+why and never raises, so an episode can try another viewpoint.
+
+Trajectories are synchronised trapezoidal velocity profiles through the waypoints (stopping at
+each), represented exactly as a cubic-Hermite `PiecewisePolynomial` (a quadratic is a cubic).
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import enum
+import itertools
+
+import numpy as np
+from pydrake.planning import SceneGraphCollisionChecker
+from pydrake.trajectories import PiecewisePolynomial
+
+from lrnbv_drake.core import kinematics
+from lrnbv_drake.station.cell import add_cell_models, fixed_pose
+from lrnbv_drake.station.resources import make_robot_diagram_builder
+from lrnbv_drake.station.scenario import Scenario
+
+#: Model instances that move with the arm (the sensor mount is welded to tool0).
+ROBOT_MODEL_NAMES = ("ur5e", "tof_mount")
+
+
+class MotionFailure(enum.Enum):
+    """Why a sensor pose cannot be reached."""
+
+    OUTSIDE_WORKSPACE = "outside_workspace"
+    UNREACHABLE = "unreachable"
+    TARGET_IN_COLLISION = "target_in_collision"
+    PATH_IN_COLLISION = "path_in_collision"
+
+
+@dc.dataclass
+class MotionPlan:
+    """A planned motion, or why there is none."""
+
+    failure: MotionFailure | None
+    reason: str
+    q_target: np.ndarray | None = None
+    trajectory: PiecewisePolynomial | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.failure is None
+
+
+def trapezoidal_trajectory(waypoints: np.ndarray, max_velocity: np.ndarray,
+                           max_acceleration: np.ndarray, start_time: float = 0.0
+                           ) -> PiecewisePolynomial:
+    """Joint trajectory through `waypoints` (n, 6), stopping at each, with every joint within
+    its velocity and acceleration limits and all joints arriving together on each segment.
+
+    Each segment scales one path parameter s in [0, 1] with the trapezoid (or triangle) that the
+    most limiting joint allows; other joints follow proportionally.
+    """
+    waypoints = np.atleast_2d(np.asarray(waypoints, float))
+    breaks, q_knots, v_knots = [start_time], [waypoints[0]], [np.zeros(waypoints.shape[1])]
+    t = start_time
+    for q0, q1 in itertools.pairwise(waypoints):
+        dq = q1 - q0
+        moving = np.abs(dq) > 1e-12
+        if not moving.any():
+            continue
+        s_vel = np.min(max_velocity[moving] / np.abs(dq[moving]))
+        s_acc = np.min(max_acceleration[moving] / np.abs(dq[moving]))
+        t_acc = s_vel / s_acc
+        if s_vel * t_acc >= 1.0:  # triangle: the peak speed is never reached
+            t_acc = np.sqrt(1.0 / s_acc)
+            s_peak = s_acc * t_acc
+            knots = [(t_acc, 0.5, s_peak), (2 * t_acc, 1.0, 0.0)]
+        else:
+            s_ramp = 0.5 * s_vel * t_acc
+            t_cruise = (1.0 - 2 * s_ramp) / s_vel
+            knots = [(t_acc, s_ramp, s_vel), (t_acc + t_cruise, 1.0 - s_ramp, s_vel),
+                     (2 * t_acc + t_cruise, 1.0, 0.0)]
+        for dt, s, s_dot in knots:
+            breaks.append(t + dt)
+            q_knots.append(q0 + s * dq)
+            v_knots.append(s_dot * dq)
+        t = breaks[-1]
+    if len(breaks) == 1:  # no motion at all: hold the position for an instant
+        breaks.append(start_time + 1e-3)
+        q_knots.append(waypoints[0])
+        v_knots.append(np.zeros(waypoints.shape[1]))
+    return PiecewisePolynomial.CubicHermite(np.array(breaks), np.column_stack(q_knots),
+                                            np.column_stack(v_knots))
+
+
+class MotionPlanner:
+    """Plans collision-free, limited motions of the sensor for one scenario's cell."""
+
+    def __init__(self, scenario: Scenario):
+        builder = make_robot_diagram_builder()
+        add_cell_models(builder.plant(), scenario)
+        plant = builder.plant()
+        plant.Finalize()
+        self._model = builder.Build()
+        robot = [plant.GetModelInstanceByName(n) for n in ROBOT_MODEL_NAMES
+                 if plant.HasModelInstanceNamed(n)]
+        self._checker = SceneGraphCollisionChecker(
+            model=self._model,
+            robot_model_instances=robot,
+            edge_step_size=scenario.robot.collision_check_step,
+            env_collision_padding=scenario.robot.collision_padding,
+            self_collision_padding=0.0,
+        )
+        self.X_W_base = fixed_pose(plant, "world", "base").GetAsMatrix4()
+        self.X_tool0_S = fixed_pose(plant, "tool0", "tof").GetAsMatrix4()
+        self._X_base_W = np.linalg.inv(self.X_W_base)
+        self._X_S_tool0 = np.linalg.inv(self.X_tool0_S)
+        self.workspace = (np.asarray(scenario.cell.workspace_lower, float),
+                          np.asarray(scenario.cell.workspace_upper, float))
+        self.max_velocity = kinematics.VELOCITY_LIMIT * scenario.robot.speed_fraction
+        self.max_acceleration = kinematics.ACCELERATION_LIMIT * \
+            scenario.robot.acceleration_fraction
+        self.home = kinematics.HOME.copy()
+
+    def sensor_pose(self, q: np.ndarray) -> np.ndarray:
+        """X_WS (4x4) for joint positions q, from the analytic forward kinematics."""
+        return self.X_W_base @ kinematics.forward_kinematics(np.asarray(q, float)) @ \
+            self.X_tool0_S
+
+    def collision_free(self, q: np.ndarray) -> bool:
+        """Whether configuration q keeps the robot clear of the cell and of itself."""
+        return bool(self._checker.CheckConfigCollisionFree(np.asarray(q, float)))
+
+    def ik_batch(self, X_WS: np.ndarray, q_current: np.ndarray) -> list[np.ndarray]:
+        """For each sensor pose (N, 4, 4), its IK solutions as in `ik`; one IK call for all."""
+        X_base_tool0 = self._X_base_W @ np.asarray(X_WS, float).reshape(-1, 4, 4) @ \
+            self._X_S_tool0
+        Q, ok = kinematics.inverse_kinematics(X_base_tool0)
+        Q = kinematics.nearest_equivalents(Q, q_current)
+        cost = np.where(ok, np.max(np.abs(Q - q_current) / self.max_velocity, axis=-1), np.inf)
+        order = np.argsort(cost, axis=1, kind="stable")
+        return [Qi[oi[: n]] for Qi, oi, n in zip(Q, order, ok.sum(axis=1), strict=True)]
+
+    def ik(self, X_WS: np.ndarray, q_current: np.ndarray) -> np.ndarray:
+        """All IK solutions for sensor pose X_WS, each joint at its 2-pi equivalent nearest
+        q_current, sorted by the time the slowest joint needs (nearest first). Shape (k, 6)."""
+        return self.ik_batch(X_WS, np.asarray(q_current, float))[0]
+
+    def plan(self, q_current: np.ndarray, X_WS: np.ndarray, start_time: float = 0.0
+             ) -> MotionPlan:
+        """Plans a motion from joints `q_current` to sensor pose `X_WS` (4x4)."""
+        q_current = np.asarray(q_current, float)
+        p = np.asarray(X_WS)[:3, 3]
+        lower, upper = self.workspace
+        if np.any(p < lower) or np.any(p > upper):
+            return MotionPlan(MotionFailure.OUTSIDE_WORKSPACE,
+                              f"sensor position {np.round(p, 3).tolist()} is outside the "
+                              f"workspace {lower.tolist()} .. {upper.tolist()}")
+        candidates = self.ik(X_WS, q_current)
+        if len(candidates) == 0:
+            return MotionPlan(MotionFailure.UNREACHABLE,
+                              f"no IK solution within joint limits for sensor position "
+                              f"{np.round(p, 3).tolist()}")
+        free = [q for q in candidates if self.collision_free(q)]
+        if not free:
+            return MotionPlan(MotionFailure.TARGET_IN_COLLISION,
+                              f"all {len(candidates)} IK solutions collide with the cell or "
+                              f"the robot itself")
+        for q in free:
+            for waypoints in ([q_current, q], [q_current, self.home, q]):
+                if all(self._checker.CheckEdgeCollisionFree(a, b)
+                       for a, b in itertools.pairwise(waypoints)):
+                    trajectory = trapezoidal_trajectory(np.array(waypoints), self.max_velocity,
+                                                        self.max_acceleration, start_time)
+                    return MotionPlan(None, "ok", q_target=q, trajectory=trajectory)
+        return MotionPlan(MotionFailure.PATH_IN_COLLISION,
+                          f"{len(free)} collision-free IK solutions, but every joint-space "
+                          f"path to them (direct or through home) collides")

@@ -1,0 +1,265 @@
+"""Scenario: everything that describes one cell and one episode, loaded from YAML.
+
+The dataclasses follow Drake's `hardware_sim` and manipulation's `station.py`: a comment above
+each field, defaults that run out of the box, and `yaml_load_typed` for loading. Before Drake
+parses a file, `check_against_schema` walks it against the dataclasses so that a bad file fails
+with the file, the field path and what was expected, instead of a bare conversion error.
+"""
+
+# No `from __future__ import annotations` here: Drake's YAML loader reads `Field.type`, which
+# postponed annotations would turn into strings.
+import dataclasses as dc
+import types
+import typing
+from pathlib import Path
+
+import yaml
+from pydrake.common.yaml import yaml_load_typed
+
+from lrnbv_drake.core.kinematics import HOME
+from lrnbv_drake.core.planning.config import PlannerParams
+from lrnbv_drake.station.hardware_config import HardwareConfig
+from lrnbv_drake.station.resources import package_url
+
+
+class ScenarioError(ValueError):
+    """A scenario file or string that does not match the schema."""
+
+
+@dc.dataclass
+class RobotConfig:
+    """The UR5e and how fast planned motions may move it."""
+
+    # Joint configuration at the start of an episode, radians.
+    initial_position: list[float] = dc.field(default_factory=lambda: HOME.tolist())
+    # Fraction of the joint velocity limits (pi rad/s) used by planned motions.
+    speed_fraction: float = 0.5
+    # Fraction of the joint acceleration limits (pi rad/s^2) used by planned motions.
+    acceleration_fraction: float = 0.5
+    # Joint-space step for checking a motion for collisions, radians.
+    collision_check_step: float = 0.05
+    # Clearance kept between the robot (with the sensor mount) and the table or object, metres.
+    collision_padding: float = 0.01
+    # Hardware only: the controller's IP address.
+    robot_ip: str = ""
+
+
+@dc.dataclass
+class CellConfig:
+    """The table, the robot's place on it and the workspace the sensor may move in."""
+
+    # Drake model directives that add the robot, the table and the sensor mount.
+    directives: str = package_url("cell/cell.dmd.yaml")
+    # Height of the table top in the world frame, metres.
+    table_height: float = 0.0
+    # Axis-aligned box (world frame, metres) the sensor origin must stay in.
+    workspace_lower: list[float] = dc.field(default_factory=lambda: [0.0, -0.6, 0.05])
+    workspace_upper: list[float] = dc.field(default_factory=lambda: [1.0, 0.6, 1.0])
+
+
+@dc.dataclass
+class ObjectConfig:
+    """The unknown object: a built-in name or a mesh file, resting on the table."""
+
+    # A built-in object (`lrnbv objects` lists them) or a path to an OBJ, STL or PLY file.
+    name: str = "horizontal_box"
+    # Uniform scale applied to the mesh (mesh units to metres).
+    scale: float = 1.0
+    # Position of the footprint centre on the table, metres, and yaw about z, degrees.
+    x: float = 0.50
+    y: float = 0.0
+    yaw_deg: float = 0.0
+
+
+@dc.dataclass
+class SensorConfig:
+    """The VL53L8CX: zone geometry, the simulated sensor's model and the serial link."""
+
+    # Zones per side and the square field of view, degrees.
+    resolution: int = 8
+    fov_deg: float = 45.0
+    # How the board's raw zone order maps to row-major (calibrate on a real board).
+    flip_x: bool = False
+    flip_y: bool = False
+    transpose: bool = False
+    # Sub-samples per zone side used to render each zone's footprint.
+    subsamples: int = 8
+    # Share of a zone a surface must cover to be reported.
+    min_share: float = 0.25
+    # Depth gap (mm) that separates two surfaces within one zone.
+    cluster_gap_mm: float = 25.0
+    # Noise: sigma = max(sigma0_mm, noise_k * distance).
+    sigma0_mm: float = 5.0
+    noise_k: float = 0.015
+    # Frame period, seconds (15 Hz in 8x8 mode).
+    period: float = 0.0666666666666666
+    # Frames discarded after the arm stops before one is used.
+    settle_frames: int = 1
+    # Hardware only: serial port and baud rate of the sensor board.
+    serial_port: str = ""
+    baud: int = 460800
+
+
+@dc.dataclass
+class MappingConfig:
+    """The occupancy map (OctoMap semantics, docs/mapping.md)."""
+
+    # Cell size, metres (Table 1's Octomap resolution).
+    resolution: float = 0.01
+    # World box the map covers, metres.
+    lower: list[float] = dc.field(default_factory=lambda: [-0.2, -0.6, -0.05])
+    upper: list[float] = dc.field(default_factory=lambda: [1.0, 0.6, 0.9])
+    # "ray": one ray per zone, like OctoMap's insertPointCloud of 64 points; "cone": each
+    # zone's whole footprint frees space up to the surface and marks it.
+    insertion: str = "ray"
+    # Sub-rays per zone side in cone mode.
+    cone_subrays: int = 5
+    # Points farther than this only free space up to it (OctoMap's maxrange); <= 0: no limit.
+    max_range: float = 2.0
+    # Zones with no target free space along their ray up to max_range.
+    free_no_target: bool = False
+
+
+@dc.dataclass
+class ExtractionConfig:
+    """Finding the object among the occupied cells (perception.ExtractionParams)."""
+
+    # Cells below the table top plus this are the table, metres. Two cell layers: range noise
+    # (sigma 5-7.5 mm at working range) lifts table points into the second layer, and those
+    # cells, chained by DBSCAN, would grow the object along the table with every pose.
+    table_tolerance: float = 0.025
+    # DBSCAN radius (metres) and core-point neighbour count. One frame's zone points lie
+    # d * tan(5.625 deg), 3-5 cm, apart at 0.3-0.5 m: the radius must bridge that.
+    dbscan_eps: float = 0.05
+    dbscan_min_samples: int = 3
+    # Smaller clusters are noise.
+    min_cluster_points: int = 10
+    # The object is the largest cluster within this xy distance of `center`, metres.
+    center: list[float] = dc.field(default_factory=lambda: [0.5, 0.0])
+    max_center_distance: float = 0.35
+    # The ROI is the object's box grown by this, metres.
+    roi_margin: float = 0.05
+    # Boxes enclose the occupied cells (True) or their centres (False). Edge zones already put
+    # points up to half a zone beyond an edge; enclosing the cells adds a cell more.
+    enclose_cells: bool = False
+
+
+@dc.dataclass
+class VisualizationConfig:
+    """What Meshcat shows."""
+
+    # Publish period of the robot and scene in Meshcat, seconds.
+    publish_period: float = 0.03125
+    # Draw the 64 zone rays of each frame, coloured by status.
+    show_rays: bool = True
+    # Draw the measured points.
+    show_points: bool = True
+
+
+@dc.dataclass
+class Scenario:
+    """One cell and one episode."""
+
+    # Seed of every random choice in the run (sensor noise, planner sampling).
+    seed: int = 0
+    robot: RobotConfig = dc.field(default_factory=RobotConfig)
+    cell: CellConfig = dc.field(default_factory=CellConfig)
+    object: ObjectConfig = dc.field(default_factory=ObjectConfig)
+    sensor: SensorConfig = dc.field(default_factory=SensorConfig)
+    mapping: MappingConfig = dc.field(default_factory=MappingConfig)
+    extraction: ExtractionConfig = dc.field(default_factory=ExtractionConfig)
+    planner: PlannerParams = dc.field(default_factory=PlannerParams)
+    # Hard cap on acquisitions in one episode, whatever the planner.
+    max_poses: int = 40
+    visualization: VisualizationConfig = dc.field(default_factory=VisualizationConfig)
+    # The real cell's drivers and safety checks (docs/hardware.md); unused in simulation.
+    hardware: HardwareConfig = dc.field(default_factory=HardwareConfig)
+
+
+def _type_name(tp: typing.Any) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _check_value(value: typing.Any, tp: typing.Any, path: str) -> None:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        errors = []
+        for option in typing.get_args(tp):
+            if option is type(None) and value is None:
+                return
+            try:
+                _check_value(value, option, path)
+                return
+            except ScenarioError as e:
+                errors.append(str(e))
+        raise ScenarioError(errors[-1])
+    if dc.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ScenarioError(f"field '{path}': expected a mapping of {tp.__name__} fields, "
+                                f"got {value!r}")
+        check_against_schema(value, tp, path)
+        return
+    if origin is list:
+        if not isinstance(value, list):
+            raise ScenarioError(f"field '{path}': expected a list, got {value!r}")
+        (item,) = typing.get_args(tp)
+        for i, v in enumerate(value):
+            _check_value(v, item, f"{path}[{i}]")
+        return
+    if tp is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    elif tp is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif tp is bool:
+        ok = isinstance(value, bool)
+    elif tp is str:
+        ok = isinstance(value, str)
+    else:
+        ok = True
+    if not ok:
+        raise ScenarioError(f"field '{path}': expected {_type_name(tp)}, got {value!r}")
+
+
+def check_against_schema(data: typing.Any, schema: type, path: str = "") -> None:
+    """Raises ScenarioError naming the first field of `data` that does not fit `schema`."""
+    if not isinstance(data, dict):
+        raise ScenarioError(f"expected a mapping of {schema.__name__} fields at "
+                            f"'{path or '<top>'}', got {data!r}")
+    hints = typing.get_type_hints(schema)
+    names = {f.name for f in dc.fields(schema)}
+    for key, value in data.items():
+        where = f"{path}.{key}" if path else str(key)
+        if key not in names:
+            raise ScenarioError(f"field '{where}' is not part of {schema.__name__}; expected "
+                                f"one of {sorted(names)}")
+        _check_value(value, hints[key], where)
+
+
+def load_scenario(filename: str | Path | None = None, data: str | None = None,
+                  defaults: "Scenario | None" = None) -> "Scenario":
+    """Loads a Scenario from a YAML file and/or string; the string overrides the file.
+
+    Raises:
+        ScenarioError: naming the file and the bad field.
+    """
+    scenario = defaults if defaults is not None else Scenario()
+    for source, text in (("file", filename), ("string", data)):
+        if text is None:
+            continue
+        label = f"scenario {source} '{text}'" if source == "file" else "scenario string"
+        try:
+            raw_text = Path(text).read_text() if source == "file" else text
+        except OSError as e:
+            raise ScenarioError(f"{label}: cannot read it ({e.strerror})") from e
+        try:
+            parsed = yaml.safe_load(raw_text)
+        except yaml.YAMLError as e:
+            raise ScenarioError(f"{label}: not valid YAML: {e}") from e
+        if parsed is None:
+            continue
+        try:
+            check_against_schema(parsed, Scenario)
+        except ScenarioError as e:
+            raise ScenarioError(f"{label}: {e}") from e
+        scenario = yaml_load_typed(schema=Scenario, data=raw_text, defaults=scenario)
+    return scenario
