@@ -1,0 +1,173 @@
+"""Numba kernels for the map's queries: cell scans over the grid, and the planner's ray walks.
+
+The ray walks are grid-local double-precision DDAs: queries, not OctoMap ports.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def cells_at_least(grid, low):
+    """(N, 3) indices of the cells whose log-odds are >= low (unknown cells never are), C order."""
+    flat = grid.reshape(-1)
+    n = 0
+    for value in flat:
+        if value >= low:
+            n += 1
+    out = np.empty((n, 3), dtype=np.int64)
+    ny, nz = grid.shape[1], grid.shape[2]
+    j = 0
+    for v in range(flat.size):
+        if flat[v] >= low:
+            out[j, 0] = v // (ny * nz)
+            out[j, 1] = (v // nz) % ny
+            out[j, 2] = v % nz
+            j += 1
+    return out
+
+
+@numba.njit(cache=True)
+def count_cells(flat, thres):
+    """(unknown, free, occupied) cell counts of the flattened grid."""
+    unknown = free = 0
+    for value in flat:
+        if value != value:
+            unknown += 1
+        elif value < thres:
+            free += 1
+    return unknown, free, flat.size - unknown - free
+
+
+@numba.njit(cache=True)
+def ray_box_interval(o, u, t0, t1, bmin, bmax):
+    """Slab test: the part of [t0, t1] where the ray o + t u is inside the box (returned
+    t0 > t1 if none). A numba function, also used by the planner's gain kernel."""
+    for a in range(3):
+        if u[a] == 0.0:
+            if o[a] < bmin[a] or o[a] > bmax[a]:
+                return 1.0, 0.0
+        else:
+            ta = (bmin[a] - o[a]) / u[a]
+            tb = (bmax[a] - o[a]) / u[a]
+            if ta > tb:
+                ta, tb = tb, ta
+            t0 = max(t0, ta)
+            t1 = min(t1, tb)
+    return t0, t1
+
+
+@numba.njit(cache=True)
+def _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta):
+    """Grid DDA state at ray parameter t0 (a point inside the grid box)."""
+    for a in range(3):
+        p = o[a] + u[a] * t0
+        i = np.int64(math.floor(p / res)) - lo[a]
+        cell[a] = min(max(i, 0), dims[a] - 1)
+        if u[a] > 0:
+            step[a] = 1
+            tmax[a] = ((lo[a] + cell[a] + 1) * res - o[a]) / u[a]
+            tdelta[a] = res / u[a]
+        elif u[a] < 0:
+            step[a] = -1
+            tmax[a] = ((lo[a] + cell[a]) * res - o[a]) / u[a]
+            tdelta[a] = -res / u[a]
+        else:
+            step[a] = 0
+            tmax[a] = np.inf
+            tdelta[a] = np.inf
+
+
+@numba.njit(cache=True)
+def _walk_step(cell, step, tmax, tdelta, dims):
+    """Advances to the next cell; returns the parameter where it is entered, or -1 on leaving
+    the grid."""
+    if tmax[0] < tmax[1]:
+        a = 0 if tmax[0] < tmax[2] else 2
+    else:
+        a = 1 if tmax[1] < tmax[2] else 2
+    t = tmax[a]
+    cell[a] += step[a]
+    if cell[a] < 0 or cell[a] >= dims[a]:
+        return -1.0
+    tmax[a] += tdelta[a]
+    return t
+
+
+@numba.njit(cache=True)
+def first_occupied_kernel(grid, lo, res, thres, origins, dirs, max_range, out_t, out_cell):
+    """`OccupancyMap.first_occupied` on the raw grid, into out_t and out_cell."""
+    dims = np.array(grid.shape, dtype=np.int64)
+    gmin = lo * res
+    gmax = (lo + dims) * res
+    u = np.empty(3)
+    cell = np.empty(3, dtype=np.int64)
+    step = np.empty(3, dtype=np.int64)
+    tmax = np.empty(3)
+    tdelta = np.empty(3)
+    for r in range(origins.shape[0]):
+        o = origins[r]
+        norm = math.sqrt(dirs[r, 0] ** 2 + dirs[r, 1] ** 2 + dirs[r, 2] ** 2)
+        if not norm > 0:
+            continue
+        for a in range(3):
+            u[a] = dirs[r, a] / norm
+        t0, t1 = ray_box_interval(o, u, 0.0, max_range, gmin, gmax)
+        if t0 > t1:
+            continue
+        _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta)
+        t = t0
+        while True:
+            if grid[cell[0], cell[1], cell[2]] >= thres:
+                out_t[r] = t
+                out_cell[r, 0], out_cell[r, 1], out_cell[r, 2] = cell[0], cell[1], cell[2]
+                break
+            t = _walk_step(cell, step, tmax, tdelta, dims)
+            if t < 0 or t > t1:
+                break
+
+
+@numba.njit(cache=True)
+def unknown_kernel(grid, lo, res, thres, origins, ends, bmin, bmax, stop_at_occupied,
+                   out_n, out_len):
+    """`OccupancyMap.unknown_along_segments` on the raw grid, added into out_n and out_len."""
+    dims = np.array(grid.shape, dtype=np.int64)
+    gmin = lo * res
+    gmax = (lo + dims) * res
+    u = np.empty(3)
+    cell = np.empty(3, dtype=np.int64)
+    step = np.empty(3, dtype=np.int64)
+    tmax = np.empty(3)
+    tdelta = np.empty(3)
+    for r in range(origins.shape[0]):
+        o = origins[r]
+        for a in range(3):
+            u[a] = ends[r, a] - o[a]
+        length = math.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
+        if not length > 0:
+            continue
+        for a in range(3):
+            u[a] /= length
+        t0, t1 = ray_box_interval(o, u, 0.0, length, gmin, gmax)
+        b0, b1 = ray_box_interval(o, u, 0.0, length, bmin, bmax)
+        if t0 > t1 or b0 > b1:
+            continue
+        _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta)
+        t = t0
+        while t <= t1:
+            value = grid[cell[0], cell[1], cell[2]]
+            if stop_at_occupied and value >= thres:
+                break
+            t_next = min(tmax[0], tmax[1], tmax[2])
+            if value != value:
+                overlap = min(t_next, t1, b1) - max(t, b0)
+                if overlap > 0:
+                    out_n[r] += 1
+                    out_len[r] += overlap
+            t = _walk_step(cell, step, tmax, tdelta, dims)
+            if t < 0:
+                break
