@@ -28,7 +28,7 @@ from lrnbv_drake.core.planning.utility import (
     sensor_rays,
 )
 from lrnbv_drake.experiments.episode import build_episode, run_episode
-from lrnbv_drake.station.cell import zone_geometry
+from lrnbv_drake.station.parts import zone_geometry
 from lrnbv_drake.station.scenario import Scenario
 
 PAPER_SECONDS_PER_ITERATION = 2.0

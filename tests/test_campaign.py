@@ -17,25 +17,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lrnbv_drake.cli.benchmark import add_benchmark_command, config_from_args, run_benchmark
 from lrnbv_drake.core import objects
 from lrnbv_drake.core.metrics import BoxMetrics, EpisodeMetrics, coverage_auc, useless_poses
-from lrnbv_drake.experiments.campaign import (
+from lrnbv_drake.experiments.campaign.figures import (
+    FIG3_PANELS,
+    plot_campaign,
+    plot_coverage_curves,
+)
+from lrnbv_drake.experiments.campaign.plan import (
     CampaignConfig,
     CampaignError,
     CampaignObject,
     PlacementRange,
-    add_benchmark_command,
-    config_from_args,
-    coverage_curves,
-    episode_row,
     plan_episodes,
     resolve_objects,
-    run_benchmark,
-    run_campaign,
     trial_streams,
 )
+from lrnbv_drake.experiments.campaign.run import run_campaign
+from lrnbv_drake.experiments.campaign.summary import coverage_curves, episode_row
 from lrnbv_drake.experiments.episode import PLANNERS
-from lrnbv_drake.experiments.figures import FIG3_PANELS, plot_campaign, plot_coverage_curves
 
 TRUE_DIMS = {"horizontal_box": (0.30, 0.20, 0.12), "vertical_box": (0.12, 0.10, 0.25)}
 ALL_PLANNERS = ("lrnbv", "nbv", "heu")

@@ -13,7 +13,7 @@ from lrnbv_drake.station.scenario import Scenario, ScenarioError
 
 
 def test_ports_have_the_stable_names():
-    dut = make_cell(Scenario())
+    dut = make_cell(Scenario()).diagram
     inputs = {dut.get_input_port(i).get_name() for i in range(dut.num_input_ports())}
     outputs = {dut.get_output_port(i).get_name() for i in range(dut.num_output_ports())}
     assert inputs == {"ur5e.position"}
@@ -31,7 +31,7 @@ def test_sensor_looking_down_sees_the_box_top():
     # straight down, the centre zones see its top 0.28 m away.
     target = look_at([0.5, 0.0, 0.40], [0.5, 0.0, 0.0])
     q = MotionPlanner(scenario).ik(target, kinematics.HOME.copy())[0]
-    dut = make_cell(scenario)
+    dut = make_cell(scenario).diagram
     simulator = Simulator(dut)
     context = simulator.get_mutable_context()
     dut.GetInputPort("ur5e.position").FixValue(context, q)

@@ -9,7 +9,7 @@ import trimesh
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.core import objects
 from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
-from lrnbv_drake.station.cell import place_object
+from lrnbv_drake.station.cell_models import place_object
 from lrnbv_drake.station.scenario import Scenario
 
 

@@ -20,16 +20,17 @@ from lrnbv_drake.core.planning.heu import HeuParams, heu_poses
 from lrnbv_drake.drivers.tof_serial import SensorTimeout
 from lrnbv_drake.experiments import session
 from lrnbv_drake.experiments.episode import run_episode
+from lrnbv_drake.experiments.recording import AcquisitionJournal, RecordingError
 from lrnbv_drake.experiments.session import (
     JOURNAL_FILE,
     MAP_FILE,
     SESSION_FILE,
-    AcquisitionJournal,
     SessionError,
     resume,
     run_session,
 )
-from lrnbv_drake.station.cell import make_cell, place_object
+from lrnbv_drake.station.cell import make_cell
+from lrnbv_drake.station.cell_models import place_object
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.scenario import load_scenario
 
@@ -118,7 +119,7 @@ def test_every_acquisition_is_on_disk_before_the_arm_leaves_its_pose(finished):
 
 def test_each_frame_was_captured_with_the_arm_still_at_its_recorded_pose(finished, scenario):
     _, out, _, _, _ = finished
-    cell = make_cell(scenario)
+    cell = make_cell(scenario).diagram
     context = cell.CreateDefaultContext()
     tof = cell.GetSubsystemByName("tof")
     for a in AcquisitionJournal(out / JOURNAL_FILE).load():
@@ -265,7 +266,7 @@ def test_the_journal_drops_a_torn_last_line(finished, tmp_path):
     torn.write_text(lines[0] + "\n" + lines[1][: len(lines[1]) // 2])
     assert [a.index for a in AcquisitionJournal(torn).load()] == [0]
     torn.write_text(lines[0][:10] + "\n" + lines[1] + "\n")
-    with pytest.raises(SessionError, match="line 1"):
+    with pytest.raises(RecordingError, match="line 1"):
         AcquisitionJournal(torn).load()
 
 

@@ -40,8 +40,8 @@ def loop_driver():
 def test_the_hardware_cell_has_the_simulated_ports_but_query_object(loop_driver):
     scenario = Scenario()
     dut = make_hardware_cell(scenario, robot=PlaybackRobot(HOME), sensor_driver=loop_driver)
-    sim_inputs, sim_outputs = _ports(make_cell(scenario))
-    inputs, outputs = _ports(dut)
+    sim_inputs, sim_outputs = _ports(make_cell(scenario).diagram)
+    inputs, outputs = _ports(dut.diagram)
     assert inputs == sim_inputs == {"ur5e.position"}
     assert outputs == sim_outputs - {"query_object"}
     assert {"ur5e.position_measured", "tof.frame", "tof.pose"} <= outputs
@@ -55,13 +55,13 @@ def test_tof_pose_is_the_simulated_cells_at_the_measured_joints(loop_driver):
     scenario = Scenario()
     q = HOME + np.array([0.3, -0.2, 0.1, 0.2, -0.1, 0.4])
     dut = make_hardware_cell(scenario, robot=PlaybackRobot(q), sensor_driver=loop_driver,
-                             meshcat=Meshcat(MeshcatParams(host="localhost")))
+                             meshcat=Meshcat(MeshcatParams(host="localhost"))).diagram
     simulator = Simulator(dut)
     context = simulator.get_mutable_context()
     dut.GetInputPort("ur5e.position").FixValue(context, q)
     simulator.Initialize()
     np.testing.assert_allclose(dut.GetOutputPort("ur5e.position_measured").Eval(context), q)
-    sim = make_cell(scenario)
+    sim = make_cell(scenario).diagram
     sim_context = sim.CreateDefaultContext()
     sim.GetInputPort("ur5e.position").FixValue(sim_context, q)
     np.testing.assert_allclose(dut.GetOutputPort("tof.pose").Eval(context).GetAsMatrix4(),
@@ -71,7 +71,8 @@ def test_tof_pose_is_the_simulated_cells_at_the_measured_joints(loop_driver):
 
 def test_make_cell_hardware_streams_simulated_frames_through_the_serial_driver():
     scenario = load_scenario(data=DRY)
-    cell = make_cell(scenario, hardware=True)
+    station = make_cell(scenario, hardware=True)
+    cell = station.diagram
     try:
         simulator = Simulator(cell)
         simulator.set_target_realtime_rate(1.0)
@@ -85,7 +86,7 @@ def test_make_cell_hardware_streams_simulated_frames_through_the_serial_driver()
             simulator.AdvanceTo(context.get_time() + 0.1)
             frame = cell.GetOutputPort("tof.frame").Eval(context)
         # The frame is the simulated cell's at those joints, and stamped on the diagram clock.
-        sim = make_cell(scenario)
+        sim = make_cell(scenario).diagram
         sim_context = sim.CreateDefaultContext()
         sim.GetInputPort("ur5e.position").FixValue(sim_context, HOME)
         tof = sim.GetSubsystemByName("tof")
@@ -95,7 +96,7 @@ def test_make_cell_hardware_streams_simulated_frames_through_the_serial_driver()
         np.testing.assert_array_equal(frame.status, expected.status)
         assert 0 < frame.timestamp_us <= context.get_time() * 1e6
     finally:
-        cell.hardware.close()
+        station.hardware.close()
 
 
 @pytest.mark.parametrize("data, field", [

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from lrnbv_drake.core.acquisition import Acquisition
 from lrnbv_drake.core.planning.heu import HeuParams, HeuPolicy, heu_poses
 from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation
 from lrnbv_drake.core.poses import look_at
 from lrnbv_drake.core.sensor import ToFFrame
-from lrnbv_drake.systems.acquisition_loop import Acquisition
 
 
 def test_look_at_points_the_optical_axis_at_the_target():

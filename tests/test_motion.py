@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.motion import MotionFailure
 from lrnbv_drake.core.poses import look_at
-from lrnbv_drake.station.motion import MotionFailure, MotionPlanner, trapezoidal_trajectory
+from lrnbv_drake.station.motion import MotionPlanner, trapezoidal_trajectory
 from lrnbv_drake.station.scenario import Scenario
 
 
@@ -80,7 +81,7 @@ def test_failures_are_typed_and_explained(planner, position, failure):
 def test_sensor_pose_matches_drake_kinematics(planner):
     from lrnbv_drake.station.cell import make_cell
 
-    dut = make_cell(Scenario())
+    dut = make_cell(Scenario()).diagram
     context = dut.CreateDefaultContext()
     rng = np.random.default_rng(1)
     for _ in range(5):

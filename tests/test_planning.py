@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from lrnbv_drake.core.acquisition import Acquisition
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.planning.config import GainParams, PlannerParams, UtilityWeights
 from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy, _Cached, cache_capacity
@@ -17,7 +18,6 @@ from lrnbv_drake.core.planning.utility import (
 )
 from lrnbv_drake.core.poses import look_at
 from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
-from lrnbv_drake.systems.acquisition_loop import Acquisition
 
 RES = 0.01
 CELL = RES**3

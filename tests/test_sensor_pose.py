@@ -4,7 +4,7 @@ import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 
 from lrnbv_drake.core import kinematics
-from lrnbv_drake.station.cell import add_cell_plant
+from lrnbv_drake.station.cell_models import add_cell_plant
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.systems.sensor_pose import SensorPose
 

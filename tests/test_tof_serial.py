@@ -17,19 +17,19 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from lrnbv_drake.cli.sensor import (
-    fit_noise_model,
-    frames_to_arrays,
-    load_recording,
-    main,
-    save_npz_atomically,
-)
+from lrnbv_drake.cli.sensor import main
 from lrnbv_drake.core.sensor import NoiseModel, ToFFrame
+from lrnbv_drake.core.sensor_calibration import fit_noise_model
 from lrnbv_drake.core.tof_protocol import encode_frame
 from lrnbv_drake.drivers.tof_serial import (
     SensorError,
     SensorTimeout,
     ToFSerialReader,
+)
+from lrnbv_drake.experiments.recording import (
+    frames_to_arrays,
+    load_recording,
+    write_npz_atomically,
 )
 from lrnbv_drake.station.scenario import load_scenario
 from lrnbv_drake.systems.tof_serial_receiver import ToFSerialReceiver
@@ -342,7 +342,7 @@ def test_characterize_recovers_sigma0_and_k(tmp_path: Path, known_distance: bool
             status[0, 0] = 255  # a zone that never sees the target
             frames.append(ToFFrame(reading, status, np.full((8, 8), 9), sequence=seq))
         files.append(tmp_path / f"flat_{d}.npz")
-        save_npz_atomically(files[-1], frames_to_arrays(frames))
+        write_npz_atomically(files[-1], frames_to_arrays(frames))
     scenario = tmp_path / "cell.yaml"
     scenario.write_text("seed: 4\nsensor:\n  resolution: 8\n  sigma0_mm: 1.0\n")
 

@@ -12,15 +12,15 @@ happens; after a stop, fix the cause and `--resume DIR`. docs/hardware.md has th
 from __future__ import annotations
 
 import argparse
-import dataclasses as dc
 import sys
 from collections.abc import Sequence
 
+from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
 from lrnbv_drake.core.robot_safety import RobotConnectionError, RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorError
 from lrnbv_drake.experiments.episode import PLANNERS, make_meshcat
 from lrnbv_drake.experiments.session import SessionError, SessionResult, resume, run_session
-from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario
+from lrnbv_drake.station.scenario import Scenario, ScenarioError
 
 #: Exit codes: the planner ended the episode; a fault stopped it; it could not start.
 EXIT_DONE, EXIT_FAULT, EXIT_ERROR = 0, 1, 2
@@ -44,7 +44,7 @@ def add_hardware_commands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--robot-ip", help="the UR controller's address (robot.robot_ip)")
     p.add_argument("--sensor-port", help="the sensor board's serial port (sensor.serial_port)")
     p.add_argument("--out", help="output folder of a new session")
-    p.add_argument("--scenario", help="scenario YAML file; the flags above override it")
+    add_scenario_arguments(p)
     p.add_argument("--planner", choices=PLANNERS, default="lrnbv")
     p.add_argument("--dry-run", action="store_true",
                    help="rehearse: play the commands back in Meshcat with simulated frames; "
@@ -57,14 +57,8 @@ def add_hardware_commands(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _scenario(args: argparse.Namespace) -> Scenario:
-    scenario = load_scenario(filename=args.scenario) if args.scenario else Scenario()
-    if args.robot_ip is not None:
-        scenario = dc.replace(scenario, robot=dc.replace(scenario.robot,
-                                                         robot_ip=args.robot_ip))
-    if args.sensor_port is not None:
-        scenario = dc.replace(scenario, sensor=dc.replace(scenario.sensor,
-                                                          serial_port=args.sensor_port))
-    return scenario
+    return load_with_overrides(args, {"robot": {"robot_ip": args.robot_ip},
+                                      "sensor": {"serial_port": args.sensor_port}})
 
 
 def _check_args(args: argparse.Namespace) -> str | None:
@@ -72,6 +66,7 @@ def _check_args(args: argparse.Namespace) -> str | None:
     if args.resume is not None:
         extra = [flag for flag, given in (("--out", args.out is not None),
                                           ("--scenario", args.scenario is not None),
+                                          ("--scenario-text", args.scenario_text is not None),
                                           ("--dry-run", args.dry_run)) if given]
         if extra:
             return (f"--resume takes the scenario, planner and dry-run choice from the "

@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses as dc
 import json
 import logging
-import os
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -43,22 +43,29 @@ from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Context, EventStatus
 
-from lrnbv_drake.core.robot_safety import RobotFault, Ur5eStatus, read_status, tcp_pose_error
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
+from lrnbv_drake.core.robot_safety import Ur5eStatus, read_status, tcp_pose_error
 from lrnbv_drake.drivers.rtde_robot import RtdeRobot
-from lrnbv_drake.drivers.tof_serial import SensorError, ToFSerialReader
+from lrnbv_drake.drivers.tof_serial import ToFSerialReader
 from lrnbv_drake.experiments.episode import (
-    MAX_EPISODE_SECONDS,
     PLANNERS,
     EpisodeDiagram,
+    EpisodeRun,
     build_episode,
-    save_frames,
+    episode_log,
+    run_loop,
+    write_outputs,
 )
-from lrnbv_drake.station.cell import zone_geometry
-from lrnbv_drake.station.hardware_cell import check_hardware_config, safety_limits
+from lrnbv_drake.experiments.recording import (
+    AcquisitionJournal,
+    RecordingError,
+    write_atomically,
+)
+from lrnbv_drake.experiments.report import episode_report
+from lrnbv_drake.station.hardware_cell import check_hardware_config
 from lrnbv_drake.station.motion import MotionPlanner
-from lrnbv_drake.station.scenario import Scenario, load_scenario
-from lrnbv_drake.systems.acquisition_loop import Acquisition, EpisodeLog
+from lrnbv_drake.station.parts import safety_limits
+from lrnbv_drake.station.scenario import Scenario, load_scenario, override
 
 _log = logging.getLogger(__name__)
 
@@ -109,87 +116,6 @@ class SessionResult:
         return len(self.log.acquisitions)
 
 
-# --- Recording -------------------------------------------------------------------------------
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"cannot record a {type(value).__name__} in JSON")
-
-
-def acquisition_to_json(a: Acquisition) -> str:
-    """One journal line (no newline)."""
-    f = a.frame
-    return json.dumps({
-        "index": a.index, "time": a.time, "q": a.q, "X_WS": a.X_WS,
-        "frame": {"sequence": f.sequence, "timestamp_us": f.timestamp_us,
-                  "distance_mm": f.distance_mm, "status": f.status, "sigma_mm": f.sigma_mm},
-        "info": a.info,
-    }, default=_json_default)
-
-
-def acquisition_from_json(line: str) -> Acquisition:
-    d = json.loads(line)
-    f = d["frame"]
-    frame = ToFFrame(distance_mm=np.array(f["distance_mm"]), status=np.array(f["status"]),
-                     sigma_mm=np.array(f["sigma_mm"]), sequence=f["sequence"],
-                     timestamp_us=f["timestamp_us"])
-    return Acquisition(index=d["index"], time=d["time"], q=np.array(d["q"], float),
-                       X_WS=np.array(d["X_WS"], float), frame=frame, info=d["info"])
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    with tmp.open("w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
-
-
-class AcquisitionJournal:
-    """`acquisitions.jsonl`: an append-only file with one acquisition per line, each fsynced
-    before `append` returns, so a crash loses at most the line being written."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-
-    def append(self, acquisition: Acquisition) -> None:
-        with self.path.open("a") as f:
-            f.write(acquisition_to_json(acquisition) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-
-    def load(self) -> list[Acquisition]:
-        """The recorded acquisitions; a torn last line (a crash mid-write) is dropped."""
-        if not self.path.exists():
-            return []
-        lines = self.path.read_text().splitlines()
-        acquisitions = []
-        for i, line in enumerate(lines):
-            try:
-                acquisitions.append(acquisition_from_json(line))
-            except (json.JSONDecodeError, KeyError, ValueError) as e:
-                if i == len(lines) - 1:
-                    _log.warning("%s: dropping a torn last line (%s)", self.path, e)
-                    break
-                raise SessionError(f"{self.path}, line {i + 1}: not an acquisition ({e})") \
-                    from e
-        return acquisitions
-
-
 class SessionMonitor:
     """The Simulator's monitor for a hardware run: after every step it appends the planner's
     new acquisitions to the journal and snapshots the map after each insertion, and it
@@ -198,7 +124,7 @@ class SessionMonitor:
     def __init__(self, simulator: Simulator, parts: EpisodeDiagram, out_dir: Path,
                  recorded: int) -> None:
         self._simulator = simulator
-        self._planner = parts.planner
+        self._parts = parts
         self._map = parts.map_system.occupancy_map
         self._journal = AcquisitionJournal(out_dir / JOURNAL_FILE)
         self._map_path = out_dir / MAP_FILE
@@ -214,18 +140,14 @@ class SessionMonitor:
 
     def record(self, root_context: Context) -> None:
         """Writes what has not been written yet."""
-        log: EpisodeLog = self._planner.GetOutputPort("log").Eval(
-            self._planner.GetMyContextFromRoot(root_context))
-        for acquisition in log.acquisitions[self._written:]:
+        for acquisition in episode_log(self._parts, root_context).acquisitions[self._written:]:
             self._journal.append(acquisition)
             self._written += 1
         if self._map.n_scans != self._map_scans:
-            tmp = self._map_path.with_name(f".{self._map_path.stem}.tmp.ot")
-            self._map.export_octomap(tmp)
-            with tmp.open("rb") as f:
-                os.fsync(f.fileno())
-            os.replace(tmp, self._map_path)
-            _fsync_dir(self._map_path.parent)
+            with tempfile.TemporaryDirectory() as folder:
+                scratch = Path(folder) / MAP_FILE
+                self._map.export_octomap(scratch)
+                write_atomically(self._map_path, scratch.read_bytes())
             self._map_scans = self._map.n_scans
 
     def _keep_pace(self, root_context: Context) -> None:
@@ -303,23 +225,6 @@ def _confirmation_text(scenario: Scenario, planner: str, out_dir: Path) -> str:
             f"Keep a hand on the emergency stop.")
 
 
-def _restore(parts: EpisodeDiagram, scenario: Scenario, recorded: list[Acquisition],
-             root_context: Context) -> None:
-    """Brings the map and the policy of an episode built with the recorded acquisitions as
-    its planner's history up to them (see `resume`)."""
-    m = scenario.mapping
-    occupancy = parts.map_system.occupancy_map
-    geometry = zone_geometry(scenario)
-    for a in recorded:
-        occupancy.insert_frame(a.frame, geometry, a.X_WS, mode=m.insertion,
-                               max_range=m.max_range if m.max_range > 0 else None,
-                               cone_k=m.cone_subrays, free_no_target=m.free_no_target)
-    # The planner shows the last recorded frame until its next capture: already in the map.
-    parts.map_system.mark_inserted(parts.map_system.GetMyMutableContextFromRoot(root_context),
-                                   recorded[-1].frame.sequence)
-    parts.policy.restore(recorded)
-
-
 def _write_session(out_dir: Path, scenario: Scenario, planner: str, dry_run: bool,
                    q_start: np.ndarray, recorded: int) -> None:
     path = out_dir / SESSION_FILE
@@ -328,30 +233,25 @@ def _write_session(out_dir: Path, scenario: Scenario, planner: str, dry_run: boo
         "runs": []}
     session["runs"].append({"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                             "q_start": q_start.tolist(), "recorded_before": recorded})
-    _write_atomically(path, json.dumps(session, indent=2))
+    write_atomically(path, json.dumps(session, indent=2))
 
 
-def _report(result: SessionResult, planner: str, scenario: Scenario, dry_run: bool,
-            wall_seconds: float) -> dict[str, Any]:
-    episode_log = result.log
-    return {
-        "planner": planner,
+def _report(planner: str, scenario: Scenario, parts: EpisodeDiagram, run: EpisodeRun,
+            result: SessionResult, dry_run: bool) -> dict[str, Any]:
+    report = episode_report(planner, scenario, run.log, termination=result.termination,
+                            wall_seconds=run.wall_seconds, sim_seconds=run.sim_seconds,
+                            map_update_seconds=parts.map_system.insert_seconds)
+    report.update({
         "dry_run": dry_run,
         "robot_ip": scenario.robot.robot_ip,
         "sensor_port": scenario.sensor.serial_port,
-        "termination": result.termination,
         "fault": result.fault,
-        "n_poses": result.n_poses,
         "resumed_from": result.resumed_from,
         "realtime_resets": result.realtime_resets,
-        "wall_seconds": wall_seconds,
-        "poses": [{"index": a.index, "time": a.time, "q": a.q.tolist(),
-                   "X_WS": a.X_WS.tolist(), "n_valid_zones": int(a.frame.valid.sum()),
-                   "info": a.info} for a in episode_log.acquisitions],
-        "motion_failures": [{"time": t, "position": X[:3, 3].tolist(), "failure": f,
-                             "reason": r} for t, X, f, r in episode_log.motion_failures],
-        "scenario": yaml_dump_typed(scenario),
-    }
+        "wall_seconds": run.wall_seconds,
+        "sensor_stats": dc.asdict(parts.cell.hardware.sensor.stats),
+    })
+    return report
 
 
 def run_session(scenario: Scenario, planner: str, out_dir: str | Path, *, confirm: Confirm,
@@ -408,11 +308,13 @@ def resume(out_dir: str | Path, *, confirm: Confirm, meshcat: Meshcat | None = N
     session = json.loads(path.read_text())
     scenario = load_scenario(data=session["scenario"])
     if robot_ip is not None:
-        scenario = dc.replace(scenario, robot=dc.replace(scenario.robot, robot_ip=robot_ip))
+        scenario = override(scenario, {"robot": {"robot_ip": robot_ip}})
     if sensor_port is not None:
-        scenario = dc.replace(scenario, sensor=dc.replace(scenario.sensor,
-                                                          serial_port=sensor_port))
-    recorded = AcquisitionJournal(out_dir / JOURNAL_FILE).load()
+        scenario = override(scenario, {"sensor": {"serial_port": sensor_port}})
+    try:
+        recorded = AcquisitionJournal(out_dir / JOURNAL_FILE).load()
+    except RecordingError as e:
+        raise SessionError(f"cannot resume: {e}") from e
     return _run(scenario, session["planner"], out_dir, recorded, confirm, meshcat,
                 session["dry_run"])
 
@@ -422,8 +324,8 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
     if planner not in PLANNERS:
         raise SessionError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
     if dry_run:
-        scenario = dc.replace(scenario, hardware=dc.replace(
-            scenario.hardware, robot_driver="playback", sensor_driver="simulated"))
+        scenario = override(scenario, {"hardware": {"robot_driver": "playback",
+                                                    "sensor_driver": "simulated"}})
     check_hardware_config(scenario)
     if scenario.robot.robot_ip:
         q_start = _read_robot(scenario, must_be_ready=not dry_run)
@@ -434,87 +336,42 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
     _preflight(scenario, q_start)
     if scenario.hardware.sensor_driver == "serial":
         _check_sensor(scenario)
-    scenario = dc.replace(scenario, robot=dc.replace(scenario.robot,
-                                                     initial_position=q_start.tolist()))
+    scenario = override(scenario, {"robot": {"initial_position": q_start.tolist()}})
     if not dry_run and not confirm(_confirmation_text(scenario, planner, out_dir)):
         return SessionResult(out_dir, "the operator did not confirm: nothing moved",
                              "declined", EpisodeLog(acquisitions=list(recorded)),
                              resumed_from=len(recorded))
     _write_session(out_dir, scenario, planner, dry_run, q_start, len(recorded))
 
-    started = time.monotonic()
     parts = build_episode(scenario, planner, meshcat, hardware=True,
                           history=EpisodeLog(acquisitions=recorded) if recorded else None)
-    try:
-        run = _simulate(parts, scenario, recorded, out_dir)
-    finally:
-        parts.cell.hardware.close()
-    episode_log: EpisodeLog = parts.planner.GetOutputPort("log").Eval(
-        parts.planner.GetMyContextFromRoot(run.context))
-    termination = run.termination or episode_log.termination or (
-        f"stopped at the {MAX_EPISODE_SECONDS:.0f} s time limit")
-    result = SessionResult(out_dir, termination, run.fault, episode_log,
-                           resumed_from=len(recorded), realtime_resets=run.realtime_resets)
-    save_frames(out_dir / "frames.npz", episode_log)
-    report = _report(result, planner, scenario, dry_run, time.monotonic() - started)
-    report["sensor_stats"] = dc.asdict(parts.cell.hardware.sensor.stats)
-    _write_atomically(out_dir / "report.json", json.dumps(report, indent=2,
-                                                          default=_json_default))
-    visualizer = parts.cell.visualizer
-    if visualizer is not None:
-        visualizer.StopRecording()
-        visualizer.PublishRecording()
-        (out_dir / "replay.html").write_text(meshcat.StaticHtml())
-    if run.error is not None:
-        raise run.error
-    return result
+    monitors: list[SessionMonitor] = []
 
+    def make_monitor(simulator: Simulator) -> SessionMonitor:
+        monitors.append(SessionMonitor(simulator, parts, out_dir, len(recorded)))
+        return monitors[-1]
 
-@dc.dataclass
-class _Run:
-    context: Context
-    fault: str | None = None
-    # The fault's message; empty when the planner ended the episode.
-    termination: str = ""
-    # An unexpected exception, raised again once everything is saved.
-    error: Exception | None = None
-    realtime_resets: int = 0
-
-
-def _simulate(parts: EpisodeDiagram, scenario: Scenario, recorded: list[Acquisition],
-              out_dir: Path) -> _Run:
-    """Runs the episode in real time until the planner ends it or something stops it; the
-    arm is stopped and every acquisition recorded whatever happens."""
-    simulator = Simulator(parts.diagram)
-    context = simulator.get_mutable_context()
-    if recorded:
-        context.SetTime(recorded[-1].time + 1.0)
-        _restore(parts, scenario, recorded, context)
-    monitor = SessionMonitor(simulator, parts, out_dir, len(recorded))
-    simulator.set_monitor(monitor)
-    simulator.set_target_realtime_rate(1.0)
-    if parts.cell.visualizer is not None:
-        parts.cell.visualizer.StartRecording(set_transforms_while_recording=True)
-    run = _Run(context)
-    try:
-        simulator.Initialize()
-        simulator.AdvanceTo(context.get_time() + MAX_EPISODE_SECONDS)
-    except RobotFault as e:
-        run.fault, run.termination = e.kind, str(e)
-    except SensorError as e:
-        run.fault, run.termination = "sensor", str(e)
-    except KeyboardInterrupt:
-        run.fault, run.termination = "interrupted", (
-            "interrupted by the operator (Ctrl-C); the arm was stopped. Continue with "
-            f"`lrnbv hardware --resume {out_dir}`")
-    except Exception as e:  # saved like any fault, then raised again by the caller
-        run.fault, run.termination, run.error = "error", f"{type(e).__name__}: {e}", e
-    finally:
-        if run.fault != "disconnected":
+    def on_stop(context: Context, fault: str | None) -> None:
+        """Stops the arm (unless the link is gone) and journals what is not yet on disk."""
+        if fault != "disconnected":
             try:
                 parts.cell.hardware.robot.servo_stop(scenario.hardware.stop_deceleration)
             except RuntimeError as e:
                 _log.warning("stopping the arm failed: %s", e)
-        monitor.record(context)
-    run.realtime_resets = monitor.realtime_resets
-    return run
+        monitors[-1].record(context)
+
+    try:
+        run = run_loop(parts, realtime_rate=1.0, recorded=recorded, make_monitor=make_monitor,
+                       on_stop=on_stop, interrupt_hint=(
+                           f"the arm was stopped. Continue with `lrnbv hardware --resume "
+                           f"{out_dir}`"))
+    finally:
+        parts.cell.hardware.close()
+    result = SessionResult(out_dir, run.termination, run.fault, run.log,
+                           resumed_from=len(recorded),
+                           realtime_resets=monitors[-1].realtime_resets)
+    write_outputs(out_dir, run, _report(planner, scenario, parts, run, result, dry_run),
+                  meshcat)
+    if run.error is not None:
+        raise run.error
+    return result

@@ -6,9 +6,9 @@
 - output `tof.frame`               the board's frames on the diagram's clock (below);
 - output `tof.pose`                the sensor pose from the measured joints.
 
-There is no `query_object`: nothing here knows where the world's geometry is. The plant is
-parsed from the same scenario models as in simulation but is not part of the diagram; it is a
-SceneGraph source only so that Meshcat shows the measured arm
+Its ports are the simulated cell's, less `query_object`: nothing here knows where the world's
+geometry is. The plant is parsed from the same scenario models as in simulation but is not
+part of the diagram; it is a SceneGraph source only so that Meshcat shows the measured arm
 (`MultibodyPositionToGeometryPose`), and it gives `SensorPose` its kinematics.
 
 Frames from the board carry the MCU's clock, which has nothing to do with the diagram's, and a
@@ -21,23 +21,27 @@ as in simulation.
 
 from __future__ import annotations
 
-import dataclasses as dc
-import logging
 from collections.abc import Callable
 
-import numpy as np
-from pydrake.geometry import Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph
+from pydrake.geometry import Meshcat, SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.robot_safety import RobotInterface, SafetyLimits
+from lrnbv_drake.core.robot_safety import RobotInterface
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
 from lrnbv_drake.drivers.rtde_robot import RtdeRobot
 from lrnbv_drake.drivers.tof_serial import ToFSerialReader
-from lrnbv_drake.station.cell import add_cell_plant, fixed_pose
+from lrnbv_drake.station.cell_models import (
+    Cell,
+    HardwareDrivers,
+    add_cell_plant,
+    apply_visualization,
+    close_all,
+    fixed_pose,
+)
 from lrnbv_drake.station.hardware_config import ROBOT_DRIVERS, SENSOR_DRIVERS
+from lrnbv_drake.station.parts import safety_limits
 from lrnbv_drake.station.scenario import Scenario, ScenarioError
 from lrnbv_drake.station.simulated_board import SimulatedToFBoard
 from lrnbv_drake.systems.sensor_pose import SensorPose
@@ -46,35 +50,10 @@ from lrnbv_drake.systems.tof_serial_receiver import ToFSerialReceiver
 from lrnbv_drake.systems.ur5e_command_sender import Ur5eCommandSender
 from lrnbv_drake.systems.ur5e_status_receiver import Ur5eStatusReceiver
 
-_log = logging.getLogger(__name__)
-
 #: Allowance for a frame's trip from the sensor to the driver (I2C read-out, USB), seconds.
 TRANSPORT_LATENCY = 0.01
 #: Extra wait for the first frame, seconds: a board may reset when its port is opened.
 BOOT_ALLOWANCE = 5.0
-
-
-@dc.dataclass
-class HardwareDrivers:
-    """The robot and sensor drivers a hardware cell uses, and what it must close."""
-
-    robot: RobotInterface
-    sensor: ToFSerialReader
-    _to_close: list[Callable[[], None]] = dc.field(default_factory=list, repr=False)
-
-    def close(self) -> None:
-        """Closes what the cell opened itself (the simulated board, the serial driver, the
-        RTDE connections), newest first; drivers passed in stay open."""
-        _close_all(self._to_close)
-
-
-def _close_all(to_close: list[Callable[[], None]]) -> None:
-    while to_close:
-        close = to_close.pop()
-        try:
-            close()
-        except (RuntimeError, OSError) as e:
-            _log.warning("closing a hardware driver failed: %s", e)
 
 
 def check_hardware_config(scenario: Scenario, *, addresses: bool = True) -> None:
@@ -126,27 +105,6 @@ def _check_serial_port(scenario: Scenario) -> None:
                             "sensor board's port (or hardware.sensor_driver: simulated)")
 
 
-def safety_limits(scenario: Scenario, X_W_base: np.ndarray, X_tool0_S: np.ndarray
-                  ) -> SafetyLimits:
-    """The command checks for this scenario's cell, whose controller `base` frame is X_W_base
-    (4x4) and whose sensor sits at X_tool0_S (4x4) on the flange."""
-    hw, cell = scenario.hardware, scenario.cell
-    margin = hw.workspace_margin
-    return SafetyLimits(
-        joint_lower=np.asarray(kinematics.JOINT_LOWER),
-        joint_upper=np.asarray(kinematics.JOINT_UPPER),
-        max_velocity=kinematics.VELOCITY_LIMIT * hw.max_speed_fraction,
-        max_acceleration=kinematics.ACCELERATION_LIMIT * hw.max_acceleration_fraction,
-        jump_tolerance=hw.command_jump_tolerance,
-        max_tracking_error=hw.max_tracking_error,
-        X_W_base=np.asarray(X_W_base, float),
-        X_tool0_S=np.asarray(X_tool0_S, float),
-        workspace_lower=np.asarray(cell.workspace_lower, float) - margin,
-        workspace_upper=np.asarray(cell.workspace_upper, float) + margin,
-        min_sensor_z=cell.table_height + hw.min_table_clearance,
-    )
-
-
 def make_robot(scenario: Scenario) -> RobotInterface:
     """The robot `hardware.robot_driver` names: RTDE (connects now) or the playback robot."""
     hw = scenario.hardware
@@ -175,12 +133,10 @@ def _open_sensor(scenario: Scenario, robot: RobotInterface,
 
 def make_hardware_cell(scenario: Scenario, meshcat: Meshcat | None = None,
                        robot: RobotInterface | None = None,
-                       sensor_driver: ToFSerialReader | None = None) -> Diagram:
-    """Builds the real cell (see the module docstring for its ports).
-
-    The diagram carries `plant`, `models` and `visualizer` like the simulated cell, and
-    `hardware` (`HardwareDrivers`); call `diagram.hardware.close()` when done. Run it in real
-    time (`Simulator.set_target_realtime_rate(1.0)`).
+                       sensor_driver: ToFSerialReader | None = None) -> Cell:
+    """Builds the real cell (see the module docstring for its ports). Call
+    `cell.hardware.close()` when done; run it in real time
+    (`Simulator.set_target_realtime_rate(1.0)`).
 
     Args:
         scenario: the cell; `scenario.hardware` picks and tunes the drivers.
@@ -197,7 +153,6 @@ def make_hardware_cell(scenario: Scenario, meshcat: Meshcat | None = None,
     check_hardware_config(scenario, addresses=False)
     builder = DiagramBuilder()
     plant, scene_graph, models = add_cell_plant(builder, scenario)
-
     to_close: list[Callable[[], None]] = []
     try:
         if robot is None:
@@ -205,19 +160,22 @@ def make_hardware_cell(scenario: Scenario, meshcat: Meshcat | None = None,
             to_close.append(robot.disconnect)
         if sensor_driver is None:
             sensor_driver = _open_sensor(scenario, robot, to_close)
-        diagram = _build(builder, scenario, meshcat, plant, scene_graph, robot, sensor_driver)
+        _add_hardware_systems(builder, scenario, plant, scene_graph, robot, sensor_driver)
+        if meshcat is not None:
+            apply_visualization(builder, scenario, plant, scene_graph, meshcat)
+        diagram = builder.Build()
     except BaseException:
-        _close_all(to_close)
+        close_all(to_close)
         raise
-    diagram.models = models
-    diagram.hardware = HardwareDrivers(robot, sensor_driver, to_close)
-    return diagram
+    diagram.set_name("hardware_cell")
+    return Cell(diagram, plant, scene_graph, models, meshcat,
+                HardwareDrivers(robot, sensor_driver, to_close))
 
 
-def _build(builder: DiagramBuilder, scenario: Scenario, meshcat: Meshcat | None,
-           plant: MultibodyPlant, scene_graph: SceneGraph, robot: RobotInterface,
-           sensor_driver: ToFSerialReader) -> Diagram:
-    """Adds the drivers' systems, exports the ports and builds the diagram."""
+def _add_hardware_systems(builder: DiagramBuilder, scenario: Scenario, plant: MultibodyPlant,
+                          scene_graph: SceneGraph, robot: RobotInterface,
+                          sensor_driver: ToFSerialReader) -> None:
+    """Adds the drivers' systems and exports the ports."""
     hw = scenario.hardware
     robot_ip = ("the playback robot" if isinstance(robot, PlaybackRobot)
                 else scenario.robot.robot_ip or "the robot")
@@ -257,18 +215,6 @@ def _build(builder: DiagramBuilder, scenario: Scenario, meshcat: Meshcat | None,
     builder.ExportOutput(measured, "ur5e.position_measured")
     builder.ExportOutput(stamper.GetOutputPort("tof_frame"), "tof.frame")
     builder.ExportOutput(pose.get_output_port(), "tof.pose")
-
-    visualizer = None
-    if meshcat is not None:
-        visualizer = MeshcatVisualizer.AddToBuilder(
-            builder, scene_graph, meshcat,
-            MeshcatVisualizerParams(publish_period=scenario.visualization.publish_period,
-                                    role=Role.kIllustration, prefix="cell"))
-    diagram = builder.Build()
-    diagram.set_name("hardware_cell")
-    diagram.plant = plant
-    diagram.visualizer = visualizer
-    return diagram
 
 
 def _describe_sensor(driver: ToFSerialReader) -> str:

@@ -12,8 +12,6 @@ each), represented exactly as a cubic-Hermite `PiecewisePolynomial` (a quadratic
 
 from __future__ import annotations
 
-import dataclasses as dc
-import enum
 import itertools
 
 import numpy as np
@@ -21,35 +19,13 @@ from pydrake.planning import SceneGraphCollisionChecker
 from pydrake.trajectories import PiecewisePolynomial
 
 from lrnbv_drake.core import kinematics
-from lrnbv_drake.station.cell import add_cell_models, fixed_pose
+from lrnbv_drake.core.motion import MotionFailure, MotionPlan
+from lrnbv_drake.station.cell_models import add_cell_models, fixed_pose
 from lrnbv_drake.station.resources import make_robot_diagram_builder
 from lrnbv_drake.station.scenario import Scenario
 
 #: Model instances that move with the arm (the sensor mount is welded to tool0).
 ROBOT_MODEL_NAMES = ("ur5e", "tof_mount")
-
-
-class MotionFailure(enum.Enum):
-    """Why a sensor pose cannot be reached."""
-
-    OUTSIDE_WORKSPACE = "outside_workspace"
-    UNREACHABLE = "unreachable"
-    TARGET_IN_COLLISION = "target_in_collision"
-    PATH_IN_COLLISION = "path_in_collision"
-
-
-@dc.dataclass
-class MotionPlan:
-    """A planned motion, or why there is none."""
-
-    failure: MotionFailure | None
-    reason: str
-    q_target: np.ndarray | None = None
-    trajectory: PiecewisePolynomial | None = None
-
-    @property
-    def ok(self) -> bool:
-        return self.failure is None
 
 
 def trapezoidal_trajectory(waypoints: np.ndarray, max_velocity: np.ndarray,

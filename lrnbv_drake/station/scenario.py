@@ -14,7 +14,8 @@ import typing
 from pathlib import Path
 
 import yaml
-from pydrake.common.yaml import yaml_load_typed
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+from pydrake.visualization import VisualizationConfig
 
 from lrnbv_drake.core.kinematics import HOME
 from lrnbv_drake.core.planning.config import PlannerParams
@@ -144,12 +145,17 @@ class ExtractionConfig:
     enclose_cells: bool = False
 
 
-@dc.dataclass
-class VisualizationConfig:
-    """What Meshcat shows."""
+def default_visualization() -> VisualizationConfig:
+    """Drake's visualization settings for the cell: the illustration geometry only (the plant
+    is not part of the diagram, so it has no contact results or inertia to show)."""
+    return VisualizationConfig(publish_period=0.03125, publish_proximity=False,
+                               publish_contacts=False, publish_inertia=False)
 
-    # Publish period of the robot and scene in Meshcat, seconds.
-    publish_period: float = 0.03125
+
+@dc.dataclass
+class ToFViewConfig:
+    """What Meshcat shows of the sensor's frames."""
+
     # Draw the 64 zone rays of each frame, coloured by status.
     show_rays: bool = True
     # Draw the measured points.
@@ -171,9 +177,20 @@ class Scenario:
     planner: PlannerParams = dc.field(default_factory=PlannerParams)
     # Hard cap on acquisitions in one episode, whatever the planner.
     max_poses: int = 40
-    visualization: VisualizationConfig = dc.field(default_factory=VisualizationConfig)
+    # Drake's Meshcat settings (ApplyVisualizationConfig).
+    visualization: VisualizationConfig = dc.field(default_factory=default_visualization)
+    tof_view: ToFViewConfig = dc.field(default_factory=ToFViewConfig)
     # The real cell's drivers and safety checks (docs/hardware.md); unused in simulation.
     hardware: HardwareConfig = dc.field(default_factory=HardwareConfig)
+
+    def __reduce__(self):
+        # Drake's VisualizationConfig does not pickle; campaign workers receive scenarios as
+        # their YAML, which round-trips every field exactly.
+        return (_from_yaml, (yaml_dump_typed(self),))
+
+
+def _from_yaml(text: str) -> "Scenario":
+    return yaml_load_typed(schema=Scenario, data=text)
 
 
 def _type_name(tp: typing.Any) -> str:
@@ -193,7 +210,7 @@ def _check_value(value: typing.Any, tp: typing.Any, path: str) -> None:
             except ScenarioError as e:
                 errors.append(str(e))
         raise ScenarioError(errors[-1])
-    if dc.is_dataclass(tp):
+    if dc.is_dataclass(tp) or hasattr(tp, "__fields__"):
         if not isinstance(value, dict):
             raise ScenarioError(f"field '{path}': expected a mapping of {tp.__name__} fields, "
                                 f"got {value!r}")
@@ -225,14 +242,27 @@ def check_against_schema(data: typing.Any, schema: type, path: str = "") -> None
     if not isinstance(data, dict):
         raise ScenarioError(f"expected a mapping of {schema.__name__} fields at "
                             f"'{path or '<top>'}', got {data!r}")
-    hints = typing.get_type_hints(schema)
-    names = {f.name for f in dc.fields(schema)}
+    if dc.is_dataclass(schema):
+        hints = typing.get_type_hints(schema)
+    else:  # a Drake struct bound with its serialisable fields, e.g. VisualizationConfig
+        hints = {f.name: f.type for f in schema.__fields__}
+    names = set(hints)
     for key, value in data.items():
         where = f"{path}.{key}" if path else str(key)
         if key not in names:
             raise ScenarioError(f"field '{where}' is not part of {schema.__name__}; expected "
                                 f"one of {sorted(names)}")
         _check_value(value, hints[key], where)
+
+
+def override(scenario: Scenario, overrides: dict[str, typing.Any]) -> Scenario:
+    """`scenario` with the fields in `overrides` (nested mappings, as in a scenario file)
+    replaced, checked like a file. Every command-line flag that sets a field goes through here.
+
+    Raises:
+        ScenarioError: naming the bad field.
+    """
+    return load_scenario(data=yaml.safe_dump(overrides), defaults=scenario)
 
 
 def load_scenario(filename: str | Path | None = None, data: str | None = None,

@@ -19,8 +19,8 @@ import numpy as np
 
 from lrnbv_drake.core.tof_protocol import encode_frame
 from lrnbv_drake.drivers.tof_serial import SensorError, ToFSerialReader
-from lrnbv_drake.station.cell import make_cell
 from lrnbv_drake.station.scenario import Scenario
+from lrnbv_drake.station.sim_cell import make_sim_cell
 
 _log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ class SimulatedToFBoard:
 
     def _run(self) -> None:
         try:
-            cell = make_cell(self._scenario)
+            cell = make_sim_cell(self._scenario).diagram
         except BaseException as e:  # handed to start(), which raises it
             self._error = e
             self._ready.set()

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses as dc
 import time
+from collections.abc import Sequence
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -125,6 +126,17 @@ class OccupancyMapSystem(LeafSystem):
         self.ValidateContext(context)
         context.get_mutable_abstract_state(self._state_index).set_value(
             MapState(self._map, sequence))
+
+    def insert_recorded(self, context: Context,
+                        recorded: Sequence[tuple[ToFFrame, np.ndarray]]) -> None:
+        """Inserts recorded (frame, X_WS 4x4) pairs into the map, in order, with this
+        system's insertion settings, and marks the last as inserted (`mark_inserted`): the
+        map a run had, rebuilt from what it recorded (a resumed session)."""
+        for frame, X_WS in recorded:
+            self._map.insert_frame(frame, self._geometry, np.asarray(X_WS, float),
+                                   **self._insert_args)
+        if recorded:
+            self.mark_inserted(context, recorded[-1][0].sequence)
 
     @property
     def insert_seconds(self) -> list[float]:

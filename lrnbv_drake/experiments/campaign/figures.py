@@ -2,7 +2,7 @@
 
 Drawn with matplotlib's object API on the Agg canvas, without pyplot: no window, no global
 backend to set, safe to call from any process. Rows are results.csv rows (see
-`campaign.episode_row`): the columns read are named in `FIG3_PANELS`; NaN values (failed
+`summary.episode_row`): the columns read are named in `FIG3_PANELS`; NaN values (failed
 episodes, reports without metrics) are left out and an empty panel says n/a.
 """
 

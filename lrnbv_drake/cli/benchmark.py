@@ -1,0 +1,125 @@
+"""`lrnbv benchmark`: the paper's evaluation campaign, every planner on every object for several
+trials, run in parallel processes (or Ray tasks), resumable, and summarised.
+
+The command line only: the campaign itself is `lrnbv_drake.experiments.campaign`, whose `run`
+module tells what `--out` DIR holds and how rerunning the same command resumes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from pathlib import Path
+
+from lrnbv_drake.experiments.campaign.plan import (
+    BACKENDS,
+    CampaignConfig,
+    CampaignError,
+    PlacementRange,
+    load_objects,
+)
+from lrnbv_drake.experiments.campaign.run import run_campaign
+from lrnbv_drake.experiments.episode import PLANNERS
+from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario
+
+
+def _planners(text: str) -> tuple[str, ...]:
+    names = tuple(dict.fromkeys(p.strip() for p in text.split(",") if p.strip()))
+    unknown = [p for p in names if p not in PLANNERS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(
+            f"--planners '{text}': {', '.join(unknown) or 'none given'} not available; "
+            f"expected a comma-separated subset of {', '.join(PLANNERS)}")
+    return names
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'")
+    return value
+
+
+def _interval(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        lo = hi = math.nan
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise argparse.ArgumentTypeError(f"expected MIN,MAX with MIN <= MAX, got '{text}'")
+    return lo, hi
+
+
+def add_benchmark_command(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Adds `benchmark` to the `lrnbv` command's subparsers."""
+    default = PlacementRange()
+    parser = subparsers.add_parser(
+        "benchmark", help="run the paper's campaign: every planner on every object, N trials",
+        description=__doc__.split("\n\n")[0])
+    parser.add_argument("--planners", type=_planners, default=PLANNERS,
+                        help=f"comma-separated planners (default: {','.join(PLANNERS)})")
+    parser.add_argument("--objects", default="paper",
+                        help="paper (the four), all (every built-in), a folder of .obj/.stl/"
+                             ".ply meshes, or comma-separated built-in names or mesh files")
+    parser.add_argument("--trials", type=_positive_int, default=5,
+                        help="trials per planner and object (default 5)")
+    parser.add_argument("--out", required=True, help="campaign folder; rerun to resume")
+    parser.add_argument("--jobs", type=_positive_int, default=os.cpu_count() or 1,
+                        help="episodes run at once (default: the CPU count)")
+    parser.add_argument("--backend", choices=BACKENDS, default="local",
+                        help="local processes, or Ray tasks (needs the 'ray' extra)")
+    parser.add_argument("--ray-address",
+                        help="a running Ray cluster (default: start a local one with --jobs CPUs)")
+    parser.add_argument("--scenario", help="scenario YAML: cell, sensor, object scale and "
+                                           "placement; its object is replaced by --objects")
+    parser.add_argument("--seed", type=int,
+                        help="base seed, from which each (object, trial) derives its own "
+                             "(default: the scenario's)")
+    parser.add_argument("--random-placement", action="store_true",
+                        help="a random object x, y, yaw per trial (the same for every planner)")
+    parser.add_argument("--x-range", type=_interval, default=default.x, metavar="MIN,MAX",
+                        help=f"random placement x, m (default {default.x[0]},{default.x[1]})")
+    parser.add_argument("--y-range", type=_interval, default=default.y, metavar="MIN,MAX",
+                        help=f"random placement y, m (default {default.y[0]},{default.y[1]})")
+    parser.add_argument("--yaw-range", type=_interval, default=default.yaw_deg,
+                        metavar="MIN,MAX", help="random placement yaw, degrees (default "
+                                                f"{default.yaw_deg[0]:g},{default.yaw_deg[1]:g})")
+    parser.add_argument("--replay", action="store_true",
+                        help="write each episode's Meshcat replay.html (slower)")
+    return parser
+
+
+def config_from_args(args: argparse.Namespace) -> CampaignConfig:
+    """The campaign the parsed arguments describe; checks every object mesh loads."""
+    scenario = load_scenario(filename=args.scenario) if args.scenario else Scenario()
+    found = load_objects(args.objects, scenario.object.scale)
+    placement = (PlacementRange(args.x_range, args.y_range, args.yaw_range)
+                 if args.random_placement else None)
+    return CampaignConfig(
+        out_dir=Path(args.out), planners=tuple(args.planners), objects=found,
+        trials=args.trials, scenario=scenario,
+        seed=scenario.seed if args.seed is None else args.seed, placement=placement,
+        jobs=args.jobs, backend=args.backend, ray_address=args.ray_address, replay=args.replay)
+
+
+def run_benchmark(args: argparse.Namespace) -> int:
+    """`lrnbv benchmark`: 0 when every episode finished, 1 when some failed, 2 on bad input."""
+    try:
+        config = config_from_args(args)
+        records = run_campaign(config)
+    except (CampaignError, ScenarioError) as e:
+        print(f"lrnbv benchmark: error: {e}", file=sys.stderr)
+        return 2
+    failed = [r["campaign"]["episode"] for r in records if r["campaign"]["status"] != "ok"]
+    print(f"{len(records) - len(failed)} of {len(records)} episodes finished; wrote "
+          f"{config.out_dir}/results.csv, summary.md, figure.png, coverage_curves.png")
+    if failed:
+        print(f"{len(failed)} failed ({', '.join(failed)}): see {config.out_dir}/episodes/; "
+              "rerun the same command to retry them", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,30 @@
+"""The one way a command's flags set scenario fields: --scenario FILE, then --scenario-text YAML
+(as Drake's hardware_sim), then the command's own flags, each through `station.scenario`'s
+schema checks."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from lrnbv_drake.station.scenario import Scenario, load_scenario, override
+
+
+def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
+    """--scenario FILE and --scenario-text YAML, read in that order (as Drake's hardware_sim);
+    a command's own flags override both."""
+    parser.add_argument("--scenario", help="scenario YAML file")
+    parser.add_argument("--scenario-text", metavar="YAML",
+                        help="scenario fields as YAML, over the file, e.g. "
+                             "'{max_poses: 10, sensor: {sigma0_mm: 8}}'")
+
+
+def load_with_overrides(args: argparse.Namespace, overrides: dict[str, Any]) -> Scenario:
+    """The scenario from --scenario and --scenario-text, then the flags' `overrides` (nested
+    like the YAML; fields left None are not set)."""
+    scenario = load_scenario(filename=args.scenario, data=args.scenario_text)
+    nested = {section: ({k: v for k, v in fields.items() if v is not None}
+                        if isinstance(fields, dict) else fields)
+              for section, fields in overrides.items() if fields is not None}
+    nested = {k: v for k, v in nested.items() if v != {}}
+    return override(scenario, nested) if nested else scenario

@@ -1,0 +1,246 @@
+"""The acquisition loop, without Drake: plan a view, move there, wait for a still frame, record
+it, let the map take it in, plan again.
+
+`AcquisitionSequencer.step` advances an `AcquisitionState` by one tick:
+
+    PLAN      ask the policy for ranked viewpoints; plan a motion to the first reachable one
+    MOVE      play the trajectory (`command`) until it ends
+    SETTLE    wait for a frame whose integration began `settle_frames` frame periods after
+              the stop, then record it as an `Acquisition`
+    WAIT_MAP  wait 1.5 ticks: the map inserts the frame on the next tick, the planner reads
+              the updated map on the one after; then PLAN
+    DONE      the policy is done, `max_poses` frames were recorded, or no proposed viewpoint
+              could be reached `max_failed_proposals` times in a row
+
+The `AcquisitionLoop` system steps it from a periodic update and reads its inputs through
+`AcquisitionInputs`; the hardware session and the simulated episode share it unchanged.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import enum
+import time
+from typing import Any, Protocol
+
+import numpy as np
+
+from lrnbv_drake.core.motion import MotionPlanning, Trajectory
+from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation, ViewpointPolicy
+from lrnbv_drake.core.sensor import ToFFrame
+
+#: A motion starts from the last command, not from the measured joints, when no joint is
+#: further apart than this, radians (see `motion_start`).
+HOLD_TOLERANCE = 0.005
+
+
+@dc.dataclass
+class Acquisition:
+    """One captured viewpoint."""
+
+    index: int
+    time: float
+    q: np.ndarray
+    X_WS: np.ndarray
+    frame: ToFFrame
+    info: dict[str, Any] = dc.field(default_factory=dict)
+
+
+@dc.dataclass
+class EpisodeLog:
+    """Everything an episode did, in order. A handle: deep copies share it (Drake copies the
+    state around every update, and the log grows with every pose)."""
+
+    acquisitions: list[Acquisition] = dc.field(default_factory=list)
+    # The object extraction after each acquisition (index-aligned with `acquisitions`).
+    extractions: list[Any] = dc.field(default_factory=list)
+    # Seconds the clustering took to give each of those extractions.
+    clustering_seconds: list[float] = dc.field(default_factory=list)
+    # Viewpoints that could not be reached: (time, X_WS, failure, reason).
+    motion_failures: list[tuple[float, np.ndarray, str, str]] = dc.field(default_factory=list)
+    # Seconds spent choosing each viewpoint (policy) and planning its motion.
+    policy_seconds: list[float] = dc.field(default_factory=list)
+    motion_seconds: list[float] = dc.field(default_factory=list)
+    termination: str = ""
+    # The last accepted proposal's drawable data (tree, cache, ROI), with its "step" number and
+    # the chosen "X_WS". Kept here, not in the copied state: its arrays are large.
+    plan: dict[str, Any] = dc.field(default_factory=dict)
+
+    def __deepcopy__(self, memo: dict) -> EpisodeLog:
+        return self
+
+
+def carried_on(history: EpisodeLog) -> EpisodeLog:
+    """A new log that starts with `history` (its lists copied: the loop appends to them).
+
+    Extractions are index-aligned with acquisitions and the loop logs the one after an
+    acquisition when it next plans, so the history's are padded with None up to the one
+    before its last acquisition; its termination is cleared, since the episode goes on.
+    """
+    aligned = len(history.acquisitions) - 1
+    return dc.replace(
+        history, acquisitions=list(history.acquisitions),
+        extractions=history.extractions + [None] * (aligned - len(history.extractions)),
+        clustering_seconds=(history.clustering_seconds
+                            + [0.0] * (aligned - len(history.clustering_seconds))),
+        motion_failures=list(history.motion_failures),
+        policy_seconds=list(history.policy_seconds),
+        motion_seconds=list(history.motion_seconds), termination="")
+
+
+def motion_start(hold: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """Where the next trajectory starts: the last command when the arm is within
+    HOLD_TOLERANCE of it on every joint, else the measured joints.
+
+    A real servo comes to rest a little off its target, so the measured joints differ from the
+    command held at rest. A trajectory from the measured joints would make its first command
+    jump by that residual (refused by the hardware sender beyond its jump tolerance); one from
+    the held command goes on from it smoothly and the servo takes up the residual. Further
+    apart, the arm is not where the last command put it (pushed, or still moving), and the
+    motion must start from where it is. In simulation the measured joints are the command, so
+    this changes nothing there.
+    """
+    return hold if np.abs(measured - hold).max() <= HOLD_TOLERANCE else measured
+
+
+class Mode(enum.Enum):
+    PLAN = "plan"
+    MOVE = "move"
+    SETTLE = "settle"
+    WAIT_MAP = "wait_map"
+    DONE = "done"
+
+
+@dc.dataclass
+class AcquisitionState:
+    """The loop's state; `step` returns a new one (the log is shared, see `EpisodeLog`)."""
+
+    mode: Mode
+    hold: np.ndarray
+    log: EpisodeLog
+    trajectory: Trajectory | None = None
+    t_stop: float = 0.0
+    t_ready: float = 0.0
+    pending_info: dict[str, Any] = dc.field(default_factory=dict)
+    failed_in_a_row: int = 0
+
+
+class AcquisitionInputs(Protocol):
+    """What the loop reads, when it needs it (reading a port can cost a map query)."""
+
+    def frame(self) -> ToFFrame: ...
+    def q(self) -> np.ndarray: ...
+    def X_WS(self) -> np.ndarray: ...
+    def observation(self, n_acquisitions: int) -> Observation: ...
+
+
+class AcquisitionSequencer:
+    """Steps the acquisition loop of one episode (see the module docstring).
+
+    The policy keeps planner memory (cached nodes, visited cells) across steps, as the
+    algorithm requires, so one sequencer runs one episode.
+    """
+
+    def __init__(self, policy: ViewpointPolicy, motion: MotionPlanning, *, period: float,
+                 frame_period: float, settle_frames: int = 1, max_poses: int = 50,
+                 max_failed_proposals: int = 5) -> None:
+        if not period > 0 or not frame_period > 0:
+            raise ValueError(f"period and frame_period must be > 0, got {period} and "
+                             f"{frame_period}")
+        if max_poses < 1:
+            raise ValueError(f"max_poses must be at least 1, got {max_poses}")
+        self.policy = policy
+        self._motion = motion
+        self._period = period
+        self._settle = settle_frames * frame_period
+        self._max_poses = max_poses
+        self._max_failed = max_failed_proposals
+
+    def initial_state(self, q_initial: np.ndarray, history: EpisodeLog | None = None
+                      ) -> AcquisitionState:
+        """Holding `q_initial`; capturing first if the policy wants the start pose. With a
+        `history` holding acquisitions, carrying that episode on from planning."""
+        q_initial = np.asarray(q_initial, float)
+        if history is not None and history.acquisitions:
+            return AcquisitionState(Mode.PLAN, q_initial, carried_on(history))
+        return AcquisitionState(Mode.SETTLE if self.policy.capture_initial else Mode.PLAN,
+                                q_initial, EpisodeLog())
+
+    @staticmethod
+    def command(state: AcquisitionState, t: float) -> np.ndarray:
+        """The joint command at time t."""
+        if state.trajectory is not None:
+            return np.asarray(state.trajectory.value(min(t, state.trajectory.end_time())),
+                              float).ravel()
+        return state.hold
+
+    def step(self, state: AcquisitionState, t: float, inputs: AcquisitionInputs
+             ) -> AcquisitionState:
+        """The state after the tick at time t."""
+        s = dc.replace(state)
+        if s.mode is Mode.MOVE and t >= s.trajectory.end_time():
+            s.hold = np.asarray(s.trajectory.value(s.trajectory.end_time()), float).ravel()
+            s.trajectory = None
+            s.mode, s.t_stop = Mode.SETTLE, t
+        elif s.mode is Mode.SETTLE:
+            frame = inputs.frame()
+            if frame.sequence > 0 and frame.timestamp_us >= (s.t_stop + self._settle) * 1e6 - 1:
+                self._record(s, t, frame, inputs)
+        elif s.mode is Mode.WAIT_MAP and t >= s.t_ready:
+            s.mode = Mode.PLAN
+        elif s.mode is Mode.PLAN:
+            self._plan(s, t, inputs)
+        return s
+
+    def _record(self, s: AcquisitionState, t: float, frame: ToFFrame,
+                inputs: AcquisitionInputs) -> None:
+        s.log.acquisitions.append(Acquisition(
+            index=len(s.log.acquisitions), time=t, q=np.asarray(inputs.q(), float).copy(),
+            X_WS=inputs.X_WS(), frame=frame, info=s.pending_info))
+        s.pending_info = {}
+        s.mode, s.t_ready = Mode.WAIT_MAP, t + 1.5 * self._period
+
+    @staticmethod
+    def _finish(s: AcquisitionState, reason: str) -> None:
+        s.mode = Mode.DONE
+        s.log.termination = reason
+
+    def _plan(self, s: AcquisitionState, t: float, inputs: AcquisitionInputs) -> None:
+        started = time.perf_counter()
+        observation = inputs.observation(len(s.log.acquisitions))
+        if observation.n_acquisitions > len(s.log.extractions):
+            s.log.extractions.append(observation.extraction)
+            s.log.clustering_seconds.append(time.perf_counter() - started)
+        if observation.n_acquisitions >= self._max_poses:
+            self._finish(s, f"reached the cap of {self._max_poses} poses")
+            return
+        started = time.perf_counter()
+        proposal = self.policy.propose(observation)
+        s.log.policy_seconds.append(time.perf_counter() - started)
+        if proposal.done:
+            self._finish(s, proposal.reason)
+            return
+        started = time.perf_counter()
+        failures = []
+        q_start = motion_start(s.hold, observation.q)
+        for i, X_WS in enumerate(proposal.candidates):
+            plan = self._motion.plan(q_start, X_WS, start_time=t)
+            if plan.ok:
+                self.policy.accepted(i, observation)
+                s.trajectory, s.mode = plan.trajectory, Mode.MOVE
+                per_candidate = proposal.candidate_info[i] if proposal.candidate_info else {}
+                s.pending_info = {**proposal.info, **per_candidate, CANDIDATE_RANK: i}
+                s.log.plan = {**proposal.debug, "step": len(s.log.policy_seconds),
+                              "X_WS": np.asarray(X_WS)}
+                break
+            failures.append((t, np.asarray(X_WS), plan.failure.value, plan.reason))
+        s.log.motion_failures.extend(failures)
+        s.log.motion_seconds.append(time.perf_counter() - started)
+        if s.mode is Mode.MOVE:
+            s.failed_in_a_row = 0
+            return
+        s.failed_in_a_row += 1
+        if s.failed_in_a_row >= self._max_failed or not proposal.candidates:
+            last = failures[-1][3] if failures else "the policy proposed no viewpoint"
+            self._finish(s, f"no reachable viewpoint in {s.failed_in_a_row} proposals "
+                            f"(last: {last})")

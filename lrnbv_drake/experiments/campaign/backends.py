@@ -1,0 +1,122 @@
+"""Where a campaign's episodes run: one after the other in this process, in local processes,
+or as Ray tasks. Each backend yields one record per episode as it ends, in any order; an
+episode that raises, or whose worker dies, becomes a "failed" record instead of stopping the
+campaign.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import multiprocessing
+import time
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+from lrnbv_drake.experiments.campaign.plan import BACKENDS, CampaignConfig, CampaignError, Episode
+from lrnbv_drake.experiments.episode import make_meshcat, run_episode
+from lrnbv_drake.station.scenario import Scenario
+
+#: (scenario, planner, run folder, write a replay) -> the episode's report dict.
+EpisodeFn = Callable[[Scenario, str, Path, bool], dict[str, Any]]
+
+
+def simulate(scenario: Scenario, planner: str, out_dir: Path, replay: bool) -> dict[str, Any]:
+    """The real episode: `run_episode`, with a Meshcat for the replay only when asked."""
+    meshcat = make_meshcat(live=False) if replay else None
+    return run_episode(scenario, planner, out_dir, meshcat).report
+
+
+def execute(episode: Episode, out_dir: Path, episode_fn: EpisodeFn) -> dict[str, Any]:
+    """Runs one episode into out_dir/runs/<key> and returns its record; an exception becomes a
+    "failed" record with the traceback, so one bad episode never stops the campaign."""
+    started = time.perf_counter()
+    fields = episode.campaign_fields()
+    try:
+        report = episode_fn(episode.scenario, episode.planner, out_dir / fields["run_dir"],
+                            episode.replay)
+    except Exception as e:
+        return failed_record(episode, f"{type(e).__name__}: {e}", traceback.format_exc(),
+                             time.perf_counter() - started)
+    fields |= {"status": "ok", "error": "", "traceback": "",
+               "episode_seconds": time.perf_counter() - started}
+    return {**report, "campaign": fields}
+
+
+def failed_record(episode: Episode, error: str, trace: str, seconds: float) -> dict[str, Any]:
+    """The record of an episode that did not finish."""
+    return {"campaign": episode.campaign_fields() | {
+        "status": "failed", "error": error, "traceback": trace, "episode_seconds": seconds}}
+
+
+def _run_serial(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
+                config: CampaignConfig) -> Iterator[dict[str, Any]]:
+    for episode in todo:
+        yield execute(episode, out_dir, episode_fn)
+
+
+def _run_processes(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
+                   config: CampaignConfig) -> Iterator[dict[str, Any]]:
+    # 'spawn': a forked child would inherit Drake's threads and locks mid-state.
+    pool = ProcessPoolExecutor(max_workers=config.jobs,
+                               mp_context=multiprocessing.get_context("spawn"))
+    try:
+        futures = {pool.submit(execute, ep, out_dir, episode_fn): ep for ep in todo}
+        for future in as_completed(futures):
+            try:
+                yield future.result()
+            except Exception as e:  # the worker died (e.g. a crash in native code)
+                yield failed_record(futures[future], f"{type(e).__name__}: {e}",
+                                    traceback.format_exc(), math.nan)
+    finally:
+        # On Ctrl-C or an error here, drop the episodes not yet started.
+        pool.shutdown(cancel_futures=True)
+
+
+def _run_ray(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
+             config: CampaignConfig) -> Iterator[dict[str, Any]]:
+    try:
+        import ray
+    except ImportError:
+        raise CampaignError("--backend ray needs Ray: pip install 'lrnbv-drake[ray]' "
+                            "(or pip install ray), or use --backend local") from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        if config.ray_address:
+            ray.init(address=config.ray_address, logging_level=logging.WARNING)
+        else:
+            ray.init(num_cpus=config.jobs, logging_level=logging.WARNING)
+    try:
+        # No Ray retries: a failure is recorded, and the next run of the command retries it.
+        task = ray.remote(num_cpus=1, max_retries=0)(execute)
+        pending = {task.remote(ep, out_dir, episode_fn): ep for ep in todo}
+        while pending:
+            (done,), _ = ray.wait(list(pending), num_returns=1)
+            episode = pending.pop(done)
+            try:
+                yield ray.get(done)
+            except Exception as e:  # the worker or the node died
+                yield failed_record(episode, f"{type(e).__name__}: {e}", traceback.format_exc(),
+                                    math.nan)
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+#: How a backend runs the episodes still to do: (todo, out_dir, episode_fn, config) -> records.
+Backend = Callable[[Sequence[Episode], Path, EpisodeFn, CampaignConfig],
+                   Iterator[dict[str, Any]]]
+
+
+def backend(config: CampaignConfig) -> Backend:
+    """The backend `config` asks for: serial for one job, else processes, or Ray."""
+    if config.backend == "ray":
+        return _run_ray
+    if config.backend != "local":
+        raise CampaignError(f"unknown backend '{config.backend}': expected one of "
+                            f"{', '.join(BACKENDS)}")
+    return _run_serial if config.jobs == 1 else _run_processes
+

@@ -1,0 +1,242 @@
+"""A campaign's results: a results.csv row per episode, summary.md (medians, quartiles and
+Mann-Whitney U tests against the reference planner) and the figures.
+
+Rows carry NaN where a report has no value (a failed episode, or a report without `metrics`),
+and every statistic leaves those out.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses as dc
+import math
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lrnbv_drake.core.stats import ALPHA, Summary, compare_planners, group_summaries, summarize
+from lrnbv_drake.experiments.campaign.figures import (
+    planner_label,
+    plot_campaign,
+    plot_coverage_curves,
+)
+from lrnbv_drake.experiments.campaign.plan import CampaignConfig
+
+#: The planner the U tests compare the others against.
+REFERENCE_PLANNER = "lrnbv"
+
+
+@dc.dataclass(frozen=True)
+class Metric:
+    """A results.csv column summarised and tested, with its label in summary.md."""
+
+    column: str
+    label: str
+
+
+METRICS: tuple[Metric, ...] = (
+    Metric("est_L", "estimated L (m)"),
+    Metric("est_W", "estimated W (m)"),
+    Metric("est_H", "estimated H (m)"),
+    Metric("abs_err_L", "abs. L error (m)"),
+    Metric("abs_err_W", "abs. W error (m)"),
+    Metric("abs_err_H", "abs. H error (m)"),
+    Metric("iou", "IoU"),
+    Metric("coverage_1cm", "coverage, 1 cm"),
+    Metric("coverage_2cm", "coverage, 2 cm"),
+    Metric("auc_1cm", "coverage AUC, 1 cm"),
+    Metric("n_poses", "poses"),
+    Metric("n_useless_poses", "useless poses"),
+    Metric("wall_seconds", "wall time (s)"),
+)
+
+CSV_COLUMNS: tuple[str, ...] = (
+    "planner", "object", "trial", "seed", "status", "n_poses", "n_useless_poses",
+    "coverage_1cm", "coverage_2cm", "auc_1cm", "auc_2cm", "iou",
+    "est_L", "est_W", "est_H", "true_L", "true_W", "true_H", "abs_err_L", "abs_err_W",
+    "abs_err_H", "object_x", "object_y", "object_yaw_deg", "termination", "wall_seconds",
+    "error",
+)
+
+
+def _num(value: Any) -> float:
+    """A metric value as float, NaN for missing (None in the JSON)."""
+    return math.nan if value is None else float(value)
+
+
+def _count(value: Any) -> int | float:
+    """A count as int, NaN for missing."""
+    return math.nan if value is None else int(value)
+
+
+def _three(values: Sequence[Any] | None) -> list[float]:
+    return [_num(v) for v in values] if values else [math.nan] * 3
+
+
+def episode_row(record: dict[str, Any]) -> dict[str, Any]:
+    """The results.csv row of an episode record; NaN where the report has no value (a failed
+    episode, or a report without `metrics`)."""
+    fields = record["campaign"]
+    metrics = record.get("metrics") or {}
+    coverage, auc = metrics.get("coverage") or {}, metrics.get("auc") or {}
+    x, y, yaw = fields["object_pose"]
+    row = {
+        "planner": fields["planner"], "object": fields["object"], "trial": fields["trial"],
+        "seed": fields["seed"], "status": fields["status"],
+        "n_poses": _count(metrics.get("n_poses", record.get("n_poses"))),
+        "n_useless_poses": _count(metrics.get("n_useless_poses")),
+        "coverage_1cm": _num(coverage.get("0.01")), "coverage_2cm": _num(coverage.get("0.02")),
+        "auc_1cm": _num(auc.get("0.01")), "auc_2cm": _num(auc.get("0.02")),
+        "iou": _num(metrics.get("iou")),
+        "object_x": x, "object_y": y, "object_yaw_deg": yaw,
+        "termination": record.get("termination", ""),
+        "wall_seconds": _num((record.get("timing") or {}).get("wall_seconds")),
+        "error": fields["error"],
+    }
+    for prefix, key in (("est", "estimated_dims"), ("true", "true_dims"),
+                        ("abs_err", "abs_dim_errors")):
+        row.update(zip((f"{prefix}_{d}" for d in "LWH"), _three(metrics.get(key)), strict=True))
+    return row
+
+
+def coverage_curves(records: Iterable[dict[str, Any]]) -> dict[tuple[str, str], list[np.ndarray]]:
+    """{(object, planner): coverage-after-each-pose curves at the primary threshold} of the
+    finished episodes that report metrics."""
+    curves: dict[tuple[str, str], list[np.ndarray]] = {}
+    for record in records:
+        metrics, fields = record.get("metrics"), record["campaign"]
+        if fields["status"] != "ok" or not metrics:
+            continue
+        curve = metrics["coverage_curve"][f"{metrics['primary_threshold']:g}"]
+        curves.setdefault((fields["object"], fields["planner"]), []).append(
+            np.array([_num(v) for v in curve]))
+    return curves
+
+
+def write_results_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+    """One line per episode; missing numbers are written `nan`."""
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def _fmt(value: float) -> str:
+    return "n/a" if not math.isfinite(value) else f"{value:.3g}"
+
+
+def _cell(summary: Summary) -> str:
+    if summary.n == 0:
+        return "n/a"
+    return f"{_fmt(summary.median)} [{_fmt(summary.q1)}, {_fmt(summary.q3)}] (n={summary.n})"
+
+
+def _first_line(text: str) -> str:
+    """The first line of `text`, safe in a markdown table cell."""
+    return (text.splitlines() or [""])[0].replace("|", "\\|")
+
+
+def _table(header: Sequence[str], lines: Iterable[Sequence[str]]) -> list[str]:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(line) + " |" for line in lines]
+    out.append("")
+    return out
+
+
+def summary_markdown(config: CampaignConfig, rows: Sequence[dict[str, Any]],
+                     records: Sequence[dict[str, Any]]) -> str:
+    """summary.md: settings, failures, medians with quartiles, and the U tests."""
+    planners, object_labels = config.planners, [o.label for o in config.objects]
+    ok = [r for r in rows if r["status"] == "ok"]
+    failed = [r for r in rows if r["status"] != "ok"]
+    placement = ("the scenario's, (x, y, yaw) = "
+                 f"({config.scenario.object.x}, {config.scenario.object.y}, "
+                 f"{config.scenario.object.yaw_deg} deg)" if config.placement is None else
+                 f"random per trial: x in {list(config.placement.x)} m, y in "
+                 f"{list(config.placement.y)} m, yaw in {list(config.placement.yaw_deg)} deg")
+    lines = [
+        "# Benchmark campaign", "",
+        f"- planners: {', '.join(planner_label(p) for p in planners)}",
+        f"- objects: {', '.join(object_labels)}",
+        f"- trials: {config.trials} per planner and object; base seed {config.seed}; every "
+        "planner gets the same seed and placement on the same (object, trial) (paired)",
+        f"- placement: {placement}",
+        f"- episodes: {len(rows)}, finished {len(ok)}, failed {len(failed)}", "",
+    ]
+    if failed:
+        lines += ["## Failed episodes", "",
+                  "Their tracebacks are in episodes/<episode>.json; rerun the same command to "
+                  "retry them. They are left out of every statistic below.", ""]
+        lines += _table(["episode", "error"], (
+            [f["episode"], _first_line(f["error"])] for f in (r["campaign"] for r in records)
+            if f["status"] != "ok"))
+    no_metrics = sorted({r["campaign"]["planner"] for r in records
+                         if r["campaign"]["status"] == "ok" and not r.get("metrics")})
+    lines += ["## Medians and quartiles", "",
+              "Each cell: median [Q1, Q3] (n = finished episodes with a value); the IQR is "
+              "Q3 - Q1. n/a: no value, because every episode failed or the reports carry no "
+              "`metrics`."]
+    if no_metrics:
+        lines += ["", f"The reports of {', '.join(planner_label(p) for p in no_metrics)} "
+                  "carry no `metrics` (box, IoU, coverage, useless poses): those are n/a and "
+                  "only poses and wall time are summarised."]
+    lines.append("")
+    summaries = group_summaries(ok, [m.column for m in METRICS])
+    empty = summarize([])
+    for obj in object_labels:
+        lines += [f"### {obj}", ""]
+        lines += _table(["metric", *(planner_label(p) for p in planners)], (
+            [m.label, *(_cell(summaries.get((obj, p), {}).get(m.column, empty))
+                        for p in planners)] for m in METRICS))
+    return "\n".join(lines + _comparison_section(config, ok)) + "\n"
+
+
+def _comparison_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
+    ref = REFERENCE_PLANNER
+    others = [p for p in config.planners if p != ref]
+    lines = ["## Mann-Whitney U tests", ""]
+    if ref not in config.planners or not others:
+        ran = ", ".join(planner_label(p) for p in config.planners)
+        return [*lines, f"n/a: the tests compare {planner_label(ref)} against the other "
+                f"planners, and this campaign ran {ran}.", ""]
+    lines += [
+        f"Two-sided `scipy.stats.mannwhitneyu` of {planner_label(ref)} against each other "
+        "planner, per object and metric, over the finished episodes. U is "
+        f"{planner_label(ref)}'s statistic: 0 when all its values are below the other's, "
+        f"n1 x n2 when all above. * marks p < {ALPHA:g}. p is exact without ties (n <= 8) and "
+        "exact over the permutations of the tied ranks with ties (small samples); n/a when a "
+        "planner has no value; notes flag equal samples and sample sizes too small to ever "
+        f"reach p < {ALPHA:g}.", ""]
+    object_labels = [o.label for o in config.objects]
+    tests = {(c.object, c.metric, c.other): c.test for c in compare_planners(
+        ok, [m.column for m in METRICS], ref, others, object_labels)}
+    header = ["metric"]
+    for other in others:
+        header += [f"vs {planner_label(other)}: {h}" for h in ("U", "p", "method; note")]
+    for obj in object_labels:
+        body = []
+        for metric in METRICS:
+            line = [metric.label]
+            for other in others:
+                t = tests[obj, metric.column, other]
+                line += [_fmt(t.u), _fmt(t.p) + (" *" if t.significant else ""),
+                         "; ".join(filter(None, (t.method, t.note)))]
+            body.append(line)
+        lines += [f"### {obj}", "", *_table(header, body)]
+    return lines
+
+
+def write_outputs(config: CampaignConfig, records: Sequence[dict[str, Any]]) -> None:
+    """results.csv, summary.md, figure.png and coverage_curves.png from the records."""
+    out_dir = config.out_dir
+    rows = [episode_row(r) for r in records]
+    write_results_csv(out_dir / "results.csv", rows)
+    (out_dir / "summary.md").write_text(summary_markdown(config, rows, records))
+    object_labels = [o.label for o in config.objects]
+    ok = [r for r in rows if r["status"] == "ok"]
+    plot_campaign(ok, object_labels, config.planners, out_dir / "figure.png")
+    plot_coverage_curves(coverage_curves(records), object_labels, config.planners,
+                         out_dir / "coverage_curves.png")
+

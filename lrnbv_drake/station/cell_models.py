@@ -1,0 +1,172 @@
+"""The cell's models in a MultibodyPlant: the robot, table and sensor mount from the scenario's
+directives, and the object resting on the table. Both the simulated and the real cell, and the
+motion planner's collision model, are built from these."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import logging
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from pydrake.geometry import (
+    GeometryInstance,
+    MakePhongIllustrationProperties,
+    Mesh,
+    Meshcat,
+    SceneGraph,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import LoadModelDirectives, ProcessModelDirectives
+from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
+from pydrake.multibody.tree import Frame, ModelInstanceIndex
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.lcm import ApplyLcmBusConfig
+from pydrake.visualization import ApplyVisualizationConfig
+
+from lrnbv_drake.core import objects
+from lrnbv_drake.core.robot_safety import RobotInterface
+from lrnbv_drake.drivers.tof_serial import ToFSerialReader
+from lrnbv_drake.station.resources import make_parser
+from lrnbv_drake.station.scenario import Scenario, ScenarioError
+
+_log = logging.getLogger(__name__)
+
+OBJECT_RGBA = np.array([0.85, 0.55, 0.2, 1.0])
+
+
+@dc.dataclass
+class CellModels:
+    """What `add_cell_models` put into a plant."""
+
+    ur5e: ModelInstanceIndex
+    placed_object: objects.PlacedObject
+    # Keeps the exported meshes (the object, the frustum) alive as long as the plant uses them.
+    mesh_dir: tempfile.TemporaryDirectory = dc.field(repr=False)
+
+
+@dc.dataclass
+class HardwareDrivers:
+    """The robot and sensor drivers a hardware cell uses, and what it must close."""
+
+    robot: RobotInterface
+    sensor: ToFSerialReader
+    _to_close: list[Callable[[], None]] = dc.field(default_factory=list, repr=False)
+
+    def close(self) -> None:
+        """Closes what the cell opened itself (the simulated board, the serial driver, the
+        RTDE connections), newest first; drivers passed in stay open."""
+        close_all(self._to_close)
+
+
+def close_all(to_close: list[Callable[[], None]]) -> None:
+    while to_close:
+        close = to_close.pop()
+        try:
+            close()
+        except (RuntimeError, OSError) as e:
+            _log.warning("closing a hardware driver failed: %s", e)
+
+
+@dc.dataclass
+class Cell:
+    """A built cell, simulated or real, and what its users need besides its ports."""
+
+    # The diagram with the ports the module `station.cell` lists.
+    diagram: Diagram
+    # The cell's plant: registered with `scene_graph` for geometry, not part of the diagram
+    # (nothing integrates it); for kinematics.
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    models: CellModels
+    # Where the cell is drawn, if anywhere.
+    meshcat: Meshcat | None = None
+    # The real cell's drivers (None in simulation); `close()` them when done.
+    hardware: HardwareDrivers | None = None
+
+
+def apply_visualization(builder: DiagramBuilder, scenario: Scenario, plant: MultibodyPlant,
+                        scene_graph: SceneGraph, meshcat: Meshcat) -> None:
+    """Drake's `ApplyVisualizationConfig` with the scenario's settings. The cell is offline:
+    its LCM bus is a disabled one that the diagram owns (`ApplyLcmBusConfig`)."""
+    buses = ApplyLcmBusConfig({"default": None}, builder)
+    ApplyVisualizationConfig(scenario.visualization, builder, lcm_buses=buses, plant=plant,
+                             scene_graph=scene_graph, meshcat=meshcat)
+
+
+def add_cell_models(plant: MultibodyPlant, scenario: Scenario) -> CellModels:
+    """Adds the robot, table and sensor mount (from the directives) and the object to `plant`.
+
+    The object is anchored to the world at its resting pose: it does not move during an episode.
+    """
+    parser = make_parser(plant)
+    directives_url = scenario.cell.directives
+    directives_path = parser.package_map().ResolveUrl(directives_url) \
+        if directives_url.startswith("package://") else directives_url
+    if not Path(directives_path).is_file():
+        raise ScenarioError(f"field 'cell.directives': no such file '{directives_url}'")
+    ProcessModelDirectives(LoadModelDirectives(directives_path), plant, parser)
+    ur5e = plant.GetModelInstanceByName("ur5e")
+
+    placed = place_object(scenario)
+    mesh_dir = tempfile.TemporaryDirectory(prefix="lrnbv_object_")
+    obj_path = Path(mesh_dir.name) / "object.obj"
+    objects.export_obj(placed.mesh, obj_path)
+    shape = Mesh(str(obj_path), 1.0)
+    world = plant.world_body()
+    plant.RegisterVisualGeometry(world, RigidTransform(), shape, "object", OBJECT_RGBA)
+    plant.RegisterCollisionGeometry(world, RigidTransform(), shape, "object",
+                                    CoulombFriction(0.5, 0.5))
+    return CellModels(ur5e=ur5e, placed_object=placed, mesh_dir=mesh_dir)
+
+
+def place_object(scenario: Scenario) -> objects.PlacedObject:
+    """The scenario's object, loaded and resting on the table at its placement."""
+    cfg = scenario.object
+    mesh = objects.load_object_mesh(cfg.name, cfg.scale)
+    placement = objects.ObjectPlacement(x=cfg.x, y=cfg.y, yaw=np.deg2rad(cfg.yaw_deg))
+    return objects.place_on_table(mesh, placement, table_height=scenario.cell.table_height)
+
+
+def add_cell_plant(builder: DiagramBuilder, scenario: Scenario
+                   ) -> tuple[MultibodyPlant, SceneGraph, CellModels]:
+    """Adds a SceneGraph to `builder` and makes the cell's finalized plant, registered with it
+    but not added to the builder: nothing integrates it, positions are fed to SceneGraph."""
+    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
+    plant = MultibodyPlant(time_step=0.0)
+    plant.set_name("plant")
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    models = add_cell_models(plant, scenario)
+    plant.Finalize()
+    if plant.num_positions() != 6:
+        raise ScenarioError(
+            f"field 'cell.directives': expected the UR5e's 6 joints to be the only positions, "
+            f"got {plant.num_positions()}")
+    return plant, scene_graph, models
+
+
+def add_frustum(plant: MultibodyPlant, scene_graph: SceneGraph, tof_frame: Frame,
+                scenario: Scenario,
+                 models: CellModels, length: float = 0.25) -> None:
+    """A translucent pyramid showing the sensor's field of view, for illustration only (with
+    the perception role it would block the simulated sensor)."""
+    half = length * np.tan(np.deg2rad(scenario.sensor.fov_deg) / 2)
+    corners = [(-half, -half), (half, -half), (half, half), (-half, half)]
+    lines = ["v 0 0 0", *(f"v {x} {y} {length}" for x, y in corners),
+             "f 1 3 2", "f 1 4 3", "f 1 5 4", "f 1 2 5", "f 2 3 4", "f 2 4 5"]
+    path = Path(models.mesh_dir.name) / "frustum.obj"
+    path.write_text("\n".join(lines) + "\n")
+    instance = GeometryInstance(tof_frame.GetFixedPoseInBodyFrame(), Mesh(str(path)), "frustum")
+    instance.set_illustration_properties(
+        MakePhongIllustrationProperties(np.array([0.2, 0.9, 0.3, 0.25])))
+    scene_graph.RegisterGeometry(plant.get_source_id(),
+                                 plant.GetBodyFrameIdOrThrow(tof_frame.body().index()), instance)
+
+
+def fixed_pose(plant: MultibodyPlant, frame_a: str, frame_b: str) -> RigidTransform:
+    """X_AB between two frames whose relative pose does not depend on the joints."""
+    context = plant.CreateDefaultContext()
+    return plant.CalcRelativeTransform(context, plant.GetFrameByName(frame_a),
+                                       plant.GetFrameByName(frame_b))

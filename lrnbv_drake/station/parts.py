@@ -1,0 +1,102 @@
+"""The one place a `Scenario` becomes the core's parameter objects and the episode's parts, so
+every field is read in one place and a new field has one home."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.boxes import AlignedBox
+from lrnbv_drake.core.objects import PlacedObject
+from lrnbv_drake.core.perception import ExtractionParams
+from lrnbv_drake.core.planning.heu import HeuPolicy
+from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy
+from lrnbv_drake.core.planning.policy import ViewpointPolicy
+from lrnbv_drake.core.robot_safety import SafetyLimits
+from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams, ZoneGeometry
+from lrnbv_drake.station.motion import MotionPlanner
+from lrnbv_drake.station.scenario import Scenario, ScenarioError
+from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
+
+#: The viewpoint policies `make_policy` knows.
+PLANNERS = ("lrnbv", "nbv", "heu")
+
+
+def zone_geometry(scenario: Scenario) -> ZoneGeometry:
+    """The sensor's zone geometry."""
+    s = scenario.sensor
+    return ZoneGeometry(resolution=s.resolution, fov_deg=s.fov_deg, flip_x=s.flip_x,
+                        flip_y=s.flip_y, transpose=s.transpose)
+
+
+def sensor_params(scenario: Scenario) -> SensorModelParams:
+    """The simulated sensor's model."""
+    s = scenario.sensor
+    return SensorModelParams(
+        geometry=zone_geometry(scenario),
+        subsamples=s.subsamples,
+        min_share=s.min_share,
+        cluster_gap_mm=s.cluster_gap_mm,
+        noise=NoiseModel(sigma0_mm=s.sigma0_mm, k=s.noise_k),
+    )
+
+
+def extraction_params(scenario: Scenario) -> ExtractionParams:
+    """The object extraction's parameters."""
+    e, m = scenario.extraction, scenario.mapping
+    return ExtractionParams(
+        table_height=scenario.cell.table_height, table_tolerance=e.table_tolerance,
+        dbscan_eps=e.dbscan_eps, dbscan_min_samples=e.dbscan_min_samples,
+        min_cluster_points=e.min_cluster_points,
+        workspace=AlignedBox(np.asarray(m.lower, float), np.asarray(m.upper, float)),
+        workspace_center=np.asarray(e.center, float),
+        max_center_distance=e.max_center_distance, roi_margin=e.roi_margin,
+        cell_size=m.resolution, enclose_cells=e.enclose_cells, seed=scenario.seed)
+
+
+def map_system(scenario: Scenario, period: float) -> OccupancyMapSystem:
+    """The occupancy map system, updated every `period` seconds."""
+    m = scenario.mapping
+    if m.insertion not in ("ray", "cone"):
+        raise ScenarioError(f"field 'mapping.insertion': expected 'ray' or 'cone', got "
+                            f"{m.insertion!r}")
+    return OccupancyMapSystem(
+        bounds=(m.lower, m.upper), resolution=m.resolution, mode=m.insertion,
+        geometry=zone_geometry(scenario), max_range=m.max_range if m.max_range > 0 else None,
+        period=period, cone_k=m.cone_subrays, free_no_target=m.free_no_target)
+
+
+def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
+                placed: PlacedObject) -> ViewpointPolicy:
+    """The viewpoint policy called `planner`."""
+    if planner == "heu":
+        # The object's true centre is given to the HEU baseline only, as in the paper.
+        return HeuPolicy(placed.mesh.bounds.mean(axis=0))
+    if planner in ("lrnbv", "nbv"):
+        return LrNbvPolicy(
+            scenario.planner, zone_geometry(scenario),
+            workspace=AlignedBox(*(np.asarray(v, float) for v in motion.workspace)),
+            ik=motion.ik_batch, collision_free=motion.collision_free,
+            table_height=scenario.cell.table_height, seed=scenario.seed, variant=planner)
+    raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
+
+
+def safety_limits(scenario: Scenario, X_W_base: np.ndarray, X_tool0_S: np.ndarray
+                  ) -> SafetyLimits:
+    """The command checks for this scenario's cell, whose controller `base` frame is X_W_base
+    (4x4) and whose sensor sits at X_tool0_S (4x4) on the flange."""
+    hw, cell = scenario.hardware, scenario.cell
+    margin = hw.workspace_margin
+    return SafetyLimits(
+        joint_lower=np.asarray(kinematics.JOINT_LOWER),
+        joint_upper=np.asarray(kinematics.JOINT_UPPER),
+        max_velocity=kinematics.VELOCITY_LIMIT * hw.max_speed_fraction,
+        max_acceleration=kinematics.ACCELERATION_LIMIT * hw.max_acceleration_fraction,
+        jump_tolerance=hw.command_jump_tolerance,
+        max_tracking_error=hw.max_tracking_error,
+        X_W_base=np.asarray(X_W_base, float),
+        X_tool0_S=np.asarray(X_tool0_S, float),
+        workspace_lower=np.asarray(cell.workspace_lower, float) - margin,
+        workspace_upper=np.asarray(cell.workspace_upper, float) + margin,
+        min_sensor_z=cell.table_height + hw.min_table_clearance,
+    )

@@ -1,0 +1,180 @@
+"""The acquisition loop's state machine alone (core.acquisition), stepped by hand: no Drake."""
+
+import numpy as np
+import pytest
+
+from lrnbv_drake.core.acquisition import (
+    HOLD_TOLERANCE,
+    Acquisition,
+    AcquisitionSequencer,
+    EpisodeLog,
+    Mode,
+    motion_start,
+)
+from lrnbv_drake.core.motion import MotionFailure, MotionPlan
+from lrnbv_drake.core.planning.policy import Observation, Proposal, ViewpointPolicy
+from lrnbv_drake.core.sensor import ToFFrame
+
+PERIOD, FRAME_PERIOD = 0.05, 0.1
+
+
+class Ramp:
+    """A trajectory from q0 to q1 over [t0, t0 + 1] s, linear."""
+
+    def __init__(self, q0, q1, t0):
+        self.q0, self.q1, self.t0 = np.asarray(q0, float), np.asarray(q1, float), t0
+
+    def value(self, t):
+        s = np.clip(t - self.t0, 0.0, 1.0)
+        return ((1 - s) * self.q0 + s * self.q1).reshape(6, 1)
+
+    def end_time(self):
+        return self.t0 + 1.0
+
+
+class ToX:
+    """Motion stand-in: the joint target is the pose's x in joint 0; x < 0 is unreachable."""
+
+    def __init__(self):
+        self.starts = []
+
+    def plan(self, q_current, X_WS, start_time=0.0):
+        self.starts.append(np.array(q_current))
+        if X_WS[0, 3] < 0:
+            return MotionPlan(MotionFailure.UNREACHABLE, f"x = {X_WS[0, 3]} < 0")
+        q = np.r_[X_WS[0, 3], np.zeros(5)]
+        return MotionPlan(None, "ok", q_target=q, trajectory=Ramp(q_current, q, start_time))
+
+
+class Scripted(ViewpointPolicy):
+    name = "scripted"
+
+    def __init__(self, proposals):
+        self.proposals = list(proposals)
+        self.observations = []
+
+    def propose(self, observation):
+        self.observations.append(observation)
+        return self.proposals.pop(0) if self.proposals else Proposal(done=True, reason="done")
+
+
+class Inputs:
+    """Fixed inputs; `frame` is what the sensor shows now."""
+
+    def __init__(self):
+        self.q_value = np.zeros(6)
+        self.frame_value = ToFFrame.empty()
+        self.extraction = None
+
+    def frame(self):
+        return self.frame_value
+
+    def q(self):
+        return self.q_value
+
+    def X_WS(self):
+        return np.eye(4)
+
+    def observation(self, n_acquisitions):
+        return Observation(time=0.0, q=self.q_value, X_WS=np.eye(4), occupancy=None,
+                           extraction=self.extraction, n_acquisitions=n_acquisitions)
+
+
+def _pose(x):
+    X = np.eye(4)
+    X[0, 3] = x
+    return X
+
+
+def _frame(sequence, t):
+    return ToFFrame(np.full((8, 8), 300), np.full((8, 8), 5), np.full((8, 8), 6),
+                    sequence=sequence, timestamp_us=round(t * 1e6))
+
+
+def test_one_cycle_moves_settles_records_waits_for_the_map_and_plans_again():
+    policy = Scripted([Proposal(candidates=[_pose(0.5)], info={"u": 1.0})])
+    dut = AcquisitionSequencer(policy, ToX(), period=PERIOD, frame_period=FRAME_PERIOD,
+                               settle_frames=2)
+    inputs = Inputs()
+    s = dut.initial_state(np.zeros(6))
+    assert s.mode is Mode.PLAN
+    s = dut.step(s, 0.0, inputs)
+    assert s.mode is Mode.MOVE
+    np.testing.assert_allclose(dut.command(s, 0.5)[0], 0.25)  # half way along the ramp
+    s = dut.step(s, 0.9, inputs)
+    assert s.mode is Mode.MOVE  # the trajectory ends at 1.0
+    s = dut.step(s, 1.0, inputs)
+    assert (s.mode, s.t_stop) == (Mode.SETTLE, 1.0)
+    np.testing.assert_allclose(s.hold[0], 0.5)
+    # settle_frames x frame_period = 0.2 s: a frame begun at 1.15 is too early, 1.2 is not.
+    inputs.frame_value = _frame(7, 1.15)
+    s = dut.step(s, 1.25, inputs)
+    assert s.mode is Mode.SETTLE and not s.log.acquisitions
+    inputs.frame_value = _frame(8, 1.2)
+    s = dut.step(s, 1.3, inputs)
+    assert s.mode is Mode.WAIT_MAP
+    (a,) = s.log.acquisitions
+    assert (a.index, a.time, a.frame.sequence) == (0, 1.3, 8)
+    assert a.info == {"u": 1.0, "candidate_rank": 0}
+    # 1.5 periods for the map and the clustering.
+    assert dut.step(s, 1.3 + 1.4 * PERIOD, inputs).mode is Mode.WAIT_MAP
+    s = dut.step(s, 1.3 + 1.5 * PERIOD, inputs)
+    assert s.mode is Mode.PLAN
+    inputs.extraction = "after pose 0"
+    s = dut.step(s, 1.5, inputs)
+    assert (s.mode, s.log.termination) == (Mode.DONE, "done")
+    assert s.log.extractions == ["after pose 0"]
+
+
+def test_unreachable_candidates_fall_through_to_the_next_and_failures_end_the_episode():
+    motion = ToX()
+    policy = Scripted([Proposal(candidates=[_pose(-1), _pose(0.3)])]
+                      + [Proposal(candidates=[_pose(-2)])] * 3)
+    dut = AcquisitionSequencer(policy, motion, period=PERIOD, frame_period=FRAME_PERIOD,
+                               max_failed_proposals=3)
+    s = dut.step(dut.initial_state(np.zeros(6)), 0.0, Inputs())
+    assert s.mode is Mode.MOVE and s.pending_info["candidate_rank"] == 1
+    assert [f[2] for f in s.log.motion_failures] == ["unreachable"]
+    s.mode, s.trajectory = Mode.PLAN, None
+    for k in range(3):
+        assert s.mode is Mode.PLAN
+        s = dut.step(s, 2.0 + k, Inputs())
+    assert s.mode is Mode.DONE
+    assert s.log.termination == "no reachable viewpoint in 3 proposals (last: x = -2.0 < 0)"
+
+
+def test_the_pose_cap_counts_recorded_acquisitions_and_a_history_carries_on():
+    recorded = [Acquisition(k, 0.1 * k, np.zeros(6), np.eye(4), _frame(k + 1, 0.1 * k))
+                for k in range(2)]
+    history = EpisodeLog(acquisitions=recorded)
+    dut = AcquisitionSequencer(Scripted([]), ToX(), period=PERIOD, frame_period=FRAME_PERIOD,
+                               max_poses=2)
+    s = dut.initial_state(np.zeros(6), history)
+    assert s.mode is Mode.PLAN and s.log is not history
+    assert s.log.extractions == [None]  # padded up to the one before the last acquisition
+    s = dut.step(s, 0.0, Inputs())
+    assert s.log.termination == "reached the cap of 2 poses"
+    assert len(history.acquisitions) == 2 and history.termination == ""
+
+
+def test_a_policy_that_captures_first_starts_by_settling():
+    policy = Scripted([])
+    policy.capture_initial = True
+    dut = AcquisitionSequencer(policy, ToX(), period=PERIOD, frame_period=FRAME_PERIOD)
+    assert dut.initial_state(np.zeros(6)).mode is Mode.SETTLE
+
+
+@pytest.mark.parametrize("offset, from_hold", [(0.99 * HOLD_TOLERANCE, True),
+                                               (1.01 * HOLD_TOLERANCE, False)])
+def test_a_motion_starts_from_the_held_command_within_the_tolerance(offset, from_hold):
+    hold, measured = np.zeros(6), np.r_[offset, np.zeros(5)]
+    expected = hold if from_hold else measured
+    np.testing.assert_array_equal(motion_start(hold, measured), expected)
+
+
+def test_bad_periods_and_caps_are_refused_with_their_names():
+    with pytest.raises(ValueError, match="period"):
+        AcquisitionSequencer(Scripted([]), ToX(), period=0.0, frame_period=FRAME_PERIOD)
+    with pytest.raises(ValueError, match="max_poses"):
+        AcquisitionSequencer(Scripted([]), ToX(), period=PERIOD, frame_period=FRAME_PERIOD,
+                             max_poses=0)
