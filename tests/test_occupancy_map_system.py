@@ -138,3 +138,27 @@ def test_a_frame_marked_inserted_is_not_inserted_again():
     assert_same_map(dut.occupancy_map, reference([*recorded, after]))
     # The mark is the context's: another context of the system has not seen frame 7.
     assert dut.CreateDefaultContext().get_abstract_state(0).get_value().last_sequence is None
+
+
+def test_recorded_frames_rebuild_the_map_the_updates_built():
+    """A resumed session's map: the recorded (frame, pose) pairs give the map that inserting
+    them one update at a time gave, in cone mode too, and the last is marked inserted."""
+    frames = [make_frame(sequence=s, seed=s) for s in (3, 4, 5)]
+    poses = [X_WS.GetAsMatrix4(), RigidTransform(RollPitchYaw(np.pi, 0.0, 0.4),
+                                                 [0.1, 0.0, 0.55]).GetAsMatrix4()] * 2
+    live = OccupancyMapSystem(BOUNDS, geometry=GEOMETRY, mode="cone", max_range=2.0,
+                              period=None)
+    live_context = live.CreateDefaultContext()
+    for frame, X in zip(frames, poses, strict=False):
+        live.GetInputPort("tof_frame").FixValue(live_context, frame)
+        live.GetInputPort("X_WS").FixValue(live_context, RigidTransform(X))
+        live.ExecuteForcedEvents(live_context)
+    dut = OccupancyMapSystem(BOUNDS, geometry=GEOMETRY, mode="cone", max_range=2.0,
+                             period=None)
+    context = dut.CreateDefaultContext()
+    dut.insert_recorded(context, list(zip(frames, poses, strict=False)))
+    assert_same_map(dut.occupancy_map, live.occupancy_map)
+    dut.GetInputPort("tof_frame").FixValue(context, frames[-1])
+    dut.GetInputPort("X_WS").FixValue(context, RigidTransform(poses[2]))
+    dut.ExecuteForcedEvents(context)
+    assert dut.occupancy_map.n_scans == 3  # the last recorded frame is not inserted twice

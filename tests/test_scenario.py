@@ -1,8 +1,16 @@
 """Scenario loading: defaults, overrides, and errors that name the bad field."""
 
-import pytest
+import pickle
+from pathlib import Path
 
-from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario
+import numpy as np
+import pytest
+import yaml
+from pydrake.common.yaml import yaml_dump_typed
+
+from lrnbv_drake.experiments.episode import run_episode
+from lrnbv_drake.station.resources import MODELS_DIR
+from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario, override
 
 
 def test_defaults_and_override(tmp_path):
@@ -53,3 +61,52 @@ def test_the_example_scenario_loads():
     assert dut.mapping.insertion == "cone"
     assert dut.planner.weights.density == 0.05
     assert dut.planner.num_cached_nodes == Scenario().planner.num_cached_nodes
+
+
+ONE_OF_EVERYTHING = Path(__file__).parent / "scenarios" / "one_of_everything.yaml"
+
+
+def _leaves(data, path=""):
+    """(path, value) of every leaf of a dumped scenario."""
+    if isinstance(data, dict):
+        for key, value in data.items():
+            yield from _leaves(value, f"{path}.{key}" if path else key)
+    else:
+        yield path, data
+
+
+def _one_of_everything():
+    return override(load_scenario(filename=ONE_OF_EVERYTHING),
+                    {"cell": {"directives": str(MODELS_DIR / "cell" / "cell.dmd.yaml")}})
+
+
+def test_one_of_everything_sets_every_field_away_from_its_default():
+    dut = dict(_leaves(yaml.safe_load(yaml_dump_typed(_one_of_everything()))))
+    default = dict(_leaves(yaml.safe_load(yaml_dump_typed(Scenario()))))
+    assert dut.keys() == default.keys()
+    at_default = [k for k in dut if dut[k] == default[k]]
+    assert at_default == [], f"fields left at their default: {at_default}"
+
+
+def test_one_of_everything_round_trips_through_pickle():
+    dut = _one_of_everything()
+    assert yaml_dump_typed(pickle.loads(pickle.dumps(dut))) == yaml_dump_typed(dut)
+
+
+def test_one_of_everything_runs_a_short_episode(tmp_path):
+    scenario = _one_of_everything()
+    result = run_episode(scenario, "lrnbv", tmp_path)
+    report = result.report
+    assert report["n_poses"] == scenario.max_poses == 3
+    assert report["termination"] == "reached the cap of 3 poses"
+    frames = np.load(tmp_path / "frames.npz")
+    assert frames["distance_mm"].shape == (3, 4, 4)  # the 4x4 mode reached the sensor
+    assert report["seed"] == 3 and report["object"] == "vertical_box"
+
+
+def test_an_override_replaces_only_the_fields_it_names():
+    base = load_scenario(data="robot: {speed_fraction: 0.3}")
+    dut = override(base, {"robot": {"robot_ip": "10.0.0.2"}})
+    assert (dut.robot.robot_ip, dut.robot.speed_fraction) == ("10.0.0.2", 0.3)
+    with pytest.raises(ScenarioError, match=r"robot\.speed"):
+        override(base, {"robot": {"speed": 1}})

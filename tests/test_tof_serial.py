@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from lrnbv_drake.cli.sensor import main
+from lrnbv_drake.cli.main import main
 from lrnbv_drake.core.sensor import NoiseModel, ToFFrame
 from lrnbv_drake.core.sensor_calibration import fit_noise_model
 from lrnbv_drake.core.tof_protocol import encode_frame

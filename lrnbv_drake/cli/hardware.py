@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
 
 from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
 from lrnbv_drake.core.robot_safety import RobotConnectionError, RobotFault
@@ -118,13 +117,3 @@ def _summarize(result: SessionResult) -> int:
     print(f"ended: {result.termination}")
     return EXIT_DONE
 
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """`python -m lrnbv_drake.cli.hardware hardware ...`, as `lrnbv hardware`."""
-    parser = argparse.ArgumentParser(prog="lrnbv")
-    add_hardware_commands(parser.add_subparsers(dest="command", required=True))
-    return run_hardware_command(parser.parse_args(argv))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

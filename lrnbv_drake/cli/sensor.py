@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 
 from lrnbv_drake.core.sensor import STATUS_NO_TARGET, ToFFrame
@@ -169,13 +168,3 @@ def run_sensor_command(args: argparse.Namespace) -> int:
         print(f"lrnbv sensor: error: {e}", file=sys.stderr)
         return 2
 
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """`python -m lrnbv_drake.cli.sensor sensor ...`, the same as `lrnbv sensor`."""
-    parser = argparse.ArgumentParser(prog="lrnbv")
-    add_sensor_commands(parser.add_subparsers(dest="command", required=True))
-    return run_sensor_command(parser.parse_args(argv))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

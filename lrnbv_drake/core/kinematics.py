@@ -104,6 +104,14 @@ def forward_kinematics(q: np.ndarray) -> np.ndarray:
     return X
 
 
+
+def sensor_pose(q: np.ndarray, X_W_base: np.ndarray, X_tool0_S: np.ndarray) -> np.ndarray:
+    """X_WS (..., 4, 4): the sensor in world for joints q (..., 6), with the controller's
+    `base` at X_W_base and the sensor at X_tool0_S on the flange. The one place the sensor
+    pose follows from the joints: the cell's `tof.pose`, the motion planner and the safety
+    checks all call it."""
+    return X_W_base @ forward_kinematics(np.asarray(q, float)) @ X_tool0_S
+
 def inverse_kinematics(
     X: np.ndarray,
     *,

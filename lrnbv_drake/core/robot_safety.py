@@ -234,8 +234,7 @@ class SafetyLimits:
 
     def sensor_position(self, q: np.ndarray) -> np.ndarray:
         """The sensor origin in world at joints q."""
-        X = self.X_W_base @ kinematics.forward_kinematics(q) @ self.X_tool0_S
-        return X[:3, 3]
+        return kinematics.sensor_pose(q, self.X_W_base, self.X_tool0_S)[:3, 3]
 
     def check(self, q: np.ndarray, q_previous: np.ndarray, v_previous: np.ndarray,
               q_measured: np.ndarray, dt: float) -> str | None:

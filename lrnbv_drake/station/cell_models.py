@@ -91,7 +91,7 @@ def apply_visualization(builder: DiagramBuilder, scenario: Scenario, plant: Mult
                         scene_graph: SceneGraph, meshcat: Meshcat) -> None:
     """Drake's `ApplyVisualizationConfig` with the scenario's settings. The cell is offline:
     its LCM bus is a disabled one that the diagram owns (`ApplyLcmBusConfig`)."""
-    buses = ApplyLcmBusConfig({"default": None}, builder)
+    buses = ApplyLcmBusConfig({scenario.visualization.lcm_bus: None}, builder)
     ApplyVisualizationConfig(scenario.visualization, builder, lcm_buses=buses, plant=plant,
                              scene_graph=scene_graph, meshcat=meshcat)
 

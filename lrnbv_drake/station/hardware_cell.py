@@ -208,7 +208,9 @@ def _add_hardware_systems(builder: DiagramBuilder, scenario: Scenario, plant: Mu
     builder.Connect(serial.GetOutputPort("tof_frame"), stamper.GetInputPort("tof_frame"))
     builder.Connect(receiver.GetOutputPort("velocity_estimated"),
                     stamper.GetInputPort("velocity"))
-    pose = builder.AddNamedSystem("tof_pose", SensorPose(plant, plant.GetFrameByName("tof")))
+    pose = builder.AddNamedSystem("tof_pose", SensorPose(
+        fixed_pose(plant, "world", "base").GetAsMatrix4(),
+        fixed_pose(plant, "tool0", "tof").GetAsMatrix4()))
     builder.Connect(measured, pose.get_input_port())
 
     builder.ExportInput(sender.GetInputPort("position"), "ur5e.position")

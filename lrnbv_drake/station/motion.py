@@ -101,8 +101,7 @@ class MotionPlanner:
 
     def sensor_pose(self, q: np.ndarray) -> np.ndarray:
         """X_WS (4x4) for joint positions q, from the analytic forward kinematics."""
-        return self.X_W_base @ kinematics.forward_kinematics(np.asarray(q, float)) @ \
-            self.X_tool0_S
+        return kinematics.sensor_pose(q, self.X_W_base, self.X_tool0_S)
 
     def collision_free(self, q: np.ndarray) -> bool:
         """Whether configuration q keeps the robot clear of the cell and of itself."""

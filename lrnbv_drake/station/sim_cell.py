@@ -18,6 +18,7 @@ from lrnbv_drake.station.cell_models import (
     add_cell_plant,
     add_frustum,
     apply_visualization,
+    fixed_pose,
 )
 from lrnbv_drake.station.parts import sensor_params
 from lrnbv_drake.station.scenario import Scenario
@@ -45,7 +46,9 @@ def make_sim_cell(scenario: Scenario, meshcat: Meshcat | None = None) -> Cell:
         period=scenario.sensor.period,
     ))
     builder.Connect(scene_graph.get_query_output_port(), sensor.get_input_port())
-    pose = builder.AddNamedSystem("tof_pose", SensorPose(plant, tof_frame))
+    pose = builder.AddNamedSystem("tof_pose", SensorPose(
+        fixed_pose(plant, "world", "base").GetAsMatrix4(),
+        fixed_pose(plant, "tool0", "tof").GetAsMatrix4()))
     builder.Connect(command.get_output_port(), pose.get_input_port())
 
     builder.ExportInput(command.get_input_port(), "ur5e.position")
