@@ -16,10 +16,14 @@ def test_lrnbv_on_the_horizontal_box_ends_by_the_paper_rule_with_a_good_box(lrnb
     report = lrnbv.report
     assert "Algorithm 1, line 24" in report["termination"]
     assert report["metrics"]["box_found"]
-    assert report["metrics"]["iou"] >= 0.7
-    # Every dimension within 3 cm of the truth (0.30 x 0.20 x 0.12 m).
+    assert report["metrics"]["iou"] >= 0.93
+    # The sensor-model estimate: every dimension within 5 mm of the truth (0.30 x 0.20 x
+    # 0.12 m), the truth inside the reported interval, and a first pose after which it stays so.
     np.testing.assert_allclose(report["metrics"]["estimated_dims"], [0.30, 0.20, 0.12],
-                               atol=0.03)
+                               atol=0.005)
+    assert report["estimated_box"]["estimator"] == "model"
+    assert report["metrics"]["truth_in_interval"] == [True, True, True]
+    assert 1 <= report["metrics"]["poses_to_5mm"] <= report["n_poses"]
     assert report["n_poses"] < Scenario().max_poses
     # The first frame is the initial acquisition; every later pose came from a plan.
     assert report["poses"][0]["info"] == {}
@@ -31,6 +35,18 @@ def test_lrnbv_on_the_horizontal_box_ends_by_the_paper_rule_with_a_good_box(lrnb
     assert len(timing["map_update_s"]) == report["n_poses"]
     assert len(timing["clustering_s"]) == report["n_poses"]
     assert len(timing["tree_expansion_s"]) == report["n_poses"] - 1
+
+
+def test_the_cell_box_is_the_papers_estimate_and_larger(lrnbv, tmp_path):
+    """`extraction.estimator: cells` boxes the occupied cells, as the paper does: the same
+    episode (same frames) gives a box at least as large as the truth, and larger than the fit."""
+    scenario = Scenario(seed=0)
+    scenario.extraction.estimator = "cells"
+    report = run_episode(scenario, "lrnbv", tmp_path).report
+    assert report["n_poses"] == lrnbv.report["n_poses"]
+    cells = np.array(report["metrics"]["estimated_dims"])
+    model = np.array(lrnbv.report["metrics"]["estimated_dims"])
+    assert np.all(cells >= [0.30, 0.20, 0.12]) and cells.sum() > model.sum()
 
 
 def test_same_seed_same_episode(lrnbv, tmp_path):

@@ -15,6 +15,7 @@ from lrnbv_drake.core.metrics import (
     coverage_curve,
     episode_metrics,
     n_useless_poses,
+    poses_to_accuracy,
     surface_coverage,
     true_box,
     useless_poses,
@@ -274,3 +275,12 @@ def test_episode_without_estimate_or_poses_exports_nan_as_none():
 def test_episode_primary_threshold_must_be_reported():
     with pytest.raises(ValueError):
         episode_metrics(None, TRUE, SQUARE, [HALF_CELLS], 0.1, thresholds=(0.02,))
+
+
+def test_poses_to_accuracy_is_the_first_pose_after_which_the_box_stays_within():
+    mm = 0.001
+    errors = np.array([[np.nan] * 3, [9, 1, 1], [4, 1, 1], [6, 0, 0], [2, -3, 1], [1, 1, -4]])
+    assert poses_to_accuracy(errors * mm, 5 * mm) == 5  # pose 4 (6 mm) breaks the run
+    assert poses_to_accuracy(errors * mm, 10 * mm) == 2  # NaN (no estimate) counts as outside
+    assert poses_to_accuracy(errors[:4] * mm, 5 * mm) is None  # outside at the end
+    assert poses_to_accuracy(np.zeros((0, 3)), 5 * mm) is None

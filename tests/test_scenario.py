@@ -83,8 +83,8 @@ def _one_of_everything():
 def test_one_of_everything_sets_every_field_away_from_its_default():
     dut = dict(_leaves(yaml.safe_load(yaml_dump_typed(_one_of_everything()))))
     default = dict(_leaves(yaml.safe_load(yaml_dump_typed(Scenario()))))
-    assert dut.keys() == default.keys()
-    at_default = [k for k in dut if dut[k] == default[k]]
+    assert default.keys() <= dut.keys()  # optional fields (device:) dump only when set
+    at_default = [k for k in default if dut[k] == default[k]]
     assert at_default == [], f"fields left at their default: {at_default}"
 
 

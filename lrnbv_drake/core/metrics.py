@@ -90,6 +90,23 @@ def box_metrics(estimated: OrientedBox | None, true: OrientedBox) -> BoxMetrics:
     )
 
 
+def poses_to_accuracy(errors_after_each_pose: np.ndarray, tolerance: float) -> int | None:
+    """The number of poses after which every dimension's |error| is within `tolerance` and
+    stays so for every later pose; None if that never happens.
+
+    Args:
+        errors_after_each_pose: (n_poses, 3) estimate - truth after each pose (NaN: no
+            estimate), e.g. the estimator re-run on each prefix of an episode. It measures a
+            planner independently of when its stop rule ended the episode.
+    """
+    errors = np.abs(np.asarray(errors_after_each_pose, dtype=np.float64)).reshape(-1, 3)
+    within = np.all(errors <= tolerance, axis=1)  # NaN compares False
+    if len(within) == 0 or not within[-1]:
+        return None
+    outside = np.flatnonzero(~within)
+    return int(outside[-1] + 2) if outside.size else 1
+
+
 # ---------------------------------------------------------------- coverage
 
 

@@ -2,7 +2,7 @@
 geometry that turns a frame into points.
 
 No Drake here: the simulated sensor (`systems/tof_sensor.py`) and the serial driver
-(`hardware/tof_serial.py`) both fill `ToFFrame`, and everything downstream reads only it.
+(`drivers/tof_serial.py`) both fill `ToFFrame`, and everything downstream reads only it.
 
 Conventions (docs/sensor-model.md gives the sources):
 - The sensor frame `tof` has z along the optical axis, x right and y down (Drake's camera
@@ -21,7 +21,9 @@ part is producing that grid (`systems/tof_sensor.py` renders it).
 from __future__ import annotations
 
 import dataclasses as dc
+import math
 
+import numba
 import numpy as np
 
 #: Target statuses the device marks as a valid range (UM3109: "5 & 9 means ranging OK").
@@ -287,32 +289,57 @@ def cluster_depths(sub_depth_m: np.ndarray, params: SensorModelParams) -> np.nda
     sub = np.asarray(sub_depth_m, dtype=np.float64)
     if sub.shape != (res, res, k, k):
         raise ValueError(f"sub_depth_m has shape {sub.shape}; expected {(res, res, k, k)}")
-    n_zones, n_samples = res * res, k * k
-    # No return sorts last as inf and never joins a finite cluster (inf - d > any gap).
-    s = np.sort(np.where(sub > 0, sub, np.inf).reshape(n_zones, n_samples), axis=1)
-    finite = np.isfinite(s)
+    return nearest_cluster_depth(sub.reshape(res * res, k * k), params).reshape(res, res)
 
-    sample_pitch = np.deg2rad(params.geometry.zone_deg) / k
-    slope = np.tan(np.deg2rad(params.max_incidence_deg)) * sample_pitch
-    gap = np.maximum(params.cluster_gap_mm / 1000.0, slope * s[:, :-1])
-    with np.errstate(invalid="ignore"):  # inf - inf between no-return samples
-        starts = np.diff(s, axis=1) > gap
-    labels = np.concatenate(
-        [np.zeros((n_zones, 1), np.int64), np.cumsum(starts, axis=1)], axis=1
-    )  # cluster index per sorted sample, nearest cluster 0
 
-    zone = np.arange(n_zones)
-    flat = labels + zone[:, None] * n_samples
-    counts = np.bincount(flat[finite], minlength=n_zones * n_samples).reshape(n_zones, -1)
-    sizeable = counts >= params.min_share * n_samples
-    chosen = np.argmax(sizeable, axis=1)  # nearest sizeable cluster (0 if there is none)
-    found = sizeable[zone, chosen]
+@numba.njit(cache=True)
+def cluster_median(depths: np.ndarray, min_count: int, gap_m: float, slope: float) -> float:
+    """The device rule on one zone's samples, sorted ascending in place (inf where nothing
+    returns): the median of the nearest cluster of at least `min_count` samples, where a
+    cluster breaks where the next sample is deeper by more than max(gap_m, slope * depth);
+    NaN if no cluster is that big."""
+    depths.sort()
+    m = depths.shape[0]
+    start = 0
+    while start < m and math.isfinite(depths[start]):
+        end = start + 1
+        while (end < m and math.isfinite(depths[end])
+               and depths[end] - depths[end - 1] <= max(gap_m, slope * depths[end - 1])):
+            end += 1
+        n = end - start
+        if n >= min_count:
+            return 0.5 * (depths[start + (n - 1) // 2] + depths[start + n // 2])
+        start = end
+    return np.nan
 
-    # Sorted, so the chosen cluster's samples are contiguous from `first`.
-    first = np.argmax(labels == chosen[:, None], axis=1)
-    n = np.maximum(counts[zone, chosen], 1)
-    median = 0.5 * (s[zone, first + (n - 1) // 2] + s[zone, first + n // 2])
-    return np.where(found, median, np.nan).reshape(res, res)
+
+@numba.njit(cache=True)
+def _cluster_kernel(samples, min_count, gap_m, slope, out):
+    buffer = np.empty(samples.shape[1])
+    for i in range(samples.shape[0]):
+        for j in range(samples.shape[1]):
+            v = samples[i, j]
+            buffer[j] = v if v > 0 else np.inf  # NaN and <= 0: no return
+        out[i] = cluster_median(buffer, min_count, gap_m, slope)
+
+
+def cluster_rule(params: SensorModelParams, n_samples: int) -> tuple[int, float, float]:
+    """(min_count, gap_m, slope) of `cluster_median` for zones of `n_samples` sub-samples.
+    The gap widens with depth so that a plane seen up to `max_incidence_deg` from its normal
+    stays one cluster at any range."""
+    pitch = np.deg2rad(params.geometry.zone_deg) / params.subsamples
+    return (math.ceil(params.min_share * n_samples - 1e-9), params.cluster_gap_mm / 1000.0,
+            math.tan(math.radians(params.max_incidence_deg)) * pitch)
+
+
+def nearest_cluster_depth(samples_m: np.ndarray, params: SensorModelParams) -> np.ndarray:
+    """`cluster_depths` for any number of zones: (n, k*k) depth samples, metres (inf, NaN or
+    <= 0 where nothing returns), to (n,) reported depths, NaN where no cluster is sizeable.
+    The box estimator predicts readings with the same `cluster_median`."""
+    samples = np.ascontiguousarray(samples_m, dtype=np.float64)
+    out = np.empty(samples.shape[0])
+    _cluster_kernel(samples, *cluster_rule(params, samples.shape[1]), out)
+    return out
 
 
 def zone_readings(

@@ -24,16 +24,23 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, EventStatus
 
 from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
+from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
 from lrnbv_drake.core.robot_safety import RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorError
 from lrnbv_drake.experiments.recording import save_frames, write_atomically
-from lrnbv_drake.experiments.report import episode_metrics, episode_report, json_default
+from lrnbv_drake.experiments.report import (
+    accuracy_metrics,
+    episode_metrics,
+    episode_report,
+    json_default,
+)
 from lrnbv_drake.station.cell import Cell, make_cell
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import (
@@ -247,8 +254,13 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
     report = episode_report(planner, scenario, run.log, termination=run.termination,
                             wall_seconds=wall, sim_seconds=run.sim_seconds,
                             map_update_seconds=parts.map_system.insert_seconds)
-    report["metrics"] = episode_metrics(scenario, parts.cell.models.placed_object,
-                                        run.log).to_dict()
+    placed = parts.cell.models.placed_object
+    estimated = (None if report["estimated_box"] is None else
+                 OrientedBox(np.array(report["estimated_box"]["center"]),
+                             np.array(report["estimated_box"]["dims"]),
+                             report["estimated_box"]["yaw"]))
+    report["metrics"] = {**episode_metrics(scenario, placed, run.log, estimated).to_dict(),
+                         **accuracy_metrics(scenario, placed, run.log, report["estimated_box"])}
     if run.fault is not None:
         report["fault"] = run.fault
     write_outputs(out_dir, run, report, meshcat)

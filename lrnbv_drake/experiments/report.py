@@ -4,6 +4,7 @@ object, the real cell its hardware state."""
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -11,7 +12,10 @@ from pydrake.common.yaml import yaml_dump_typed
 
 from lrnbv_drake.core import metrics
 from lrnbv_drake.core.acquisition import EpisodeLog
+from lrnbv_drake.core.box_fit import BoxFit
+from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.objects import PlacedObject, sample_surface
+from lrnbv_drake.station.parts import box_estimator
 from lrnbv_drake.station.scenario import Scenario
 
 #: Spacing of the surface samples the coverage metric counts, metres (threshold / 2).
@@ -31,12 +35,52 @@ def _final_extraction(episode_log: EpisodeLog):
     return episode_log.extractions[-1] if episode_log.extractions else None
 
 
+def _found_box(extraction) -> OrientedBox | None:
+    return extraction.oriented_box if extraction is not None and extraction.found else None
+
+
+def estimate_box(scenario: Scenario, episode_log: EpisodeLog
+                 ) -> tuple[OrientedBox | None, BoxFit | None]:
+    """The episode's box as `extraction.estimator` says: the sensor-model fit to every reading
+    (with its interval), started from the final cell box; or that cell box itself."""
+    cells = _found_box(_final_extraction(episode_log))
+    estimator = box_estimator(scenario)
+    if cells is None or estimator is None:
+        return cells, None
+    for a in episode_log.acquisitions:
+        estimator.add(a.frame, a.X_WS)
+    fit = estimator.estimate(cells)
+    return (fit.box if fit is not None else cells), fit
+
+
+def errors_after_each_pose(scenario: Scenario, episode_log: EpisodeLog,
+                           true: OrientedBox) -> np.ndarray:
+    """(n_poses, 3) estimate - truth of the dimensions after each pose: the estimator re-run
+    on each prefix of the episode, warm-started pose to pose; NaN before an object is found."""
+    estimator = box_estimator(scenario)
+    errors = np.full((len(episode_log.acquisitions), 3), np.nan)
+    for i, a in enumerate(episode_log.acquisitions):
+        cells = _found_box(episode_log.extractions[i] if i < len(episode_log.extractions)
+                           else None)
+        if estimator is None:
+            box = cells
+        else:
+            estimator.add(a.frame, a.X_WS)
+            fit = estimator.estimate(cells, interval=False)
+            box = fit.box if fit is not None else None
+        if box is not None:
+            errors[i] = box.dims - true.dims
+    return errors
+
+
 def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
                    termination: str, wall_seconds: float, sim_seconds: float,
                    map_update_seconds: list[float]) -> dict[str, Any]:
     """The fields every report has: settings, the estimated box, every pose, timings."""
     final = _final_extraction(episode_log)
-    found = final is not None and final.found
+    started = time.perf_counter()
+    box, fit = estimate_box(scenario, episode_log)
+    estimate_seconds = time.perf_counter() - started
     return {
         "planner": planner,
         "object": scenario.object.name,
@@ -45,9 +89,7 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
         "seed": scenario.seed,
         "termination": termination,
         "n_poses": len(episode_log.acquisitions),
-        "estimated_box": ({"center": final.oriented_box.center.tolist(),
-                           "dims": final.oriented_box.dims.tolist(),
-                           "yaw": float(final.oriented_box.yaw)} if found else None),
+        "estimated_box": _box_entry(scenario, box, fit),
         "extraction": final.reason if final is not None else "no extraction",
         "poses": [{
             "index": a.index,
@@ -72,16 +114,27 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
                                      if "cache_reevaluation_s" in a.info],
             "map_update_s": list(map_update_seconds),
             "clustering_s": episode_log.clustering_seconds,
+            "box_estimate_s": estimate_seconds,
         },
         "scenario": yaml_dump_typed(scenario),
     }
 
 
-def episode_metrics(scenario: Scenario, placed: PlacedObject,
-                    episode_log: EpisodeLog) -> metrics.EpisodeMetrics:
+def _box_entry(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None
+               ) -> dict[str, Any] | None:
+    if box is None:
+        return None
+    entry = {"estimator": scenario.extraction.estimator, "center": box.center.tolist(),
+             "dims": box.dims.tolist(), "yaw": float(box.yaw)}
+    if fit is not None:
+        entry.update(dims_lower=fit.dims_lower.tolist(), dims_upper=fit.dims_upper.tolist(),
+                     zones=fit.n_zones)
+    return entry
+
+
+def episode_metrics(scenario: Scenario, placed: PlacedObject, episode_log: EpisodeLog,
+                    estimated: OrientedBox | None) -> metrics.EpisodeMetrics:
     """Box, coverage and pose metrics of an episode against the true object."""
-    final = _final_extraction(episode_log)
-    estimated = final.oriented_box if final is not None and final.found else None
     table = scenario.cell.table_height
     # The same samples for every planner and trial (seed 0): differences are the planners'.
     samples = sample_surface(placed.mesh, COVERAGE_SPACING, table_height=table, seed=0)
@@ -89,3 +142,25 @@ def episode_metrics(scenario: Scenario, placed: PlacedObject,
              for e in episode_log.extractions]
     return metrics.episode_metrics(estimated, metrics.true_box(placed.mesh.vertices, table),
                                    samples, cells, scenario.mapping.resolution)
+
+
+def accuracy_metrics(scenario: Scenario, placed: PlacedObject, episode_log: EpisodeLog,
+                     report_box: dict[str, Any] | None) -> dict[str, Any]:
+    """The box in millimetres against the truth: per-dimension errors, whether the truth lies
+    in the reported interval, and poses-to-5 mm and -10 mm (`metrics.poses_to_accuracy`)."""
+    true = metrics.true_box(placed.mesh.vertices, scenario.cell.table_height)
+    errors = errors_after_each_pose(scenario, episode_log, true)
+    out: dict[str, Any] = {
+        "dim_errors_mm": (None if report_box is None else
+                          np.round((np.array(report_box["dims"]) - true.dims) * 1000, 2)
+                          .tolist()),
+        "poses_to_5mm": metrics.poses_to_accuracy(errors, 0.005),
+        "poses_to_10mm": metrics.poses_to_accuracy(errors, 0.010),
+        "dim_errors_after_each_pose_mm": [
+            [None if np.isnan(v) else round(float(v) * 1000, 2) for v in row]
+            for row in errors],
+    }
+    if report_box is not None and "dims_lower" in report_box:
+        lower, upper = np.array(report_box["dims_lower"]), np.array(report_box["dims_upper"])
+        out["truth_in_interval"] = ((lower <= true.dims) & (true.dims <= upper)).tolist()
+    return out

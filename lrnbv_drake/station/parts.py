@@ -3,9 +3,12 @@ every field is read in one place and a new field has one home."""
 
 from __future__ import annotations
 
+import dataclasses as dc
+
 import numpy as np
 
 from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.box_fit import BoxEstimator
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.objects import PlacedObject
 from lrnbv_drake.core.perception import ExtractionParams
@@ -30,7 +33,7 @@ def zone_geometry(scenario: Scenario) -> ZoneGeometry:
 
 
 def sensor_params(scenario: Scenario) -> SensorModelParams:
-    """The simulated sensor's model."""
+    """The sensor model the software assumes (`sensor:`): what the estimator predicts with."""
     s = scenario.sensor
     return SensorModelParams(
         geometry=zone_geometry(scenario),
@@ -39,6 +42,30 @@ def sensor_params(scenario: Scenario) -> SensorModelParams:
         cluster_gap_mm=s.cluster_gap_mm,
         noise=NoiseModel(sigma0_mm=s.sigma0_mm, k=s.noise_k),
     )
+
+
+def device_params(scenario: Scenario) -> SensorModelParams:
+    """How the simulated device behaves: the model with `device:`'s fields where set. Only the
+    simulated sensor may use it (tests/test_device_section.py checks)."""
+    model, d = sensor_params(scenario), scenario.device
+    noise = NoiseModel(sigma0_mm=model.noise.sigma0_mm if d.sigma0_mm is None else d.sigma0_mm,
+                       k=model.noise.k if d.noise_k is None else d.noise_k)
+    return dc.replace(model, noise=noise,
+                      min_share=model.min_share if d.min_share is None else d.min_share,
+                      cluster_gap_mm=(model.cluster_gap_mm if d.cluster_gap_mm is None
+                                      else d.cluster_gap_mm))
+
+
+def box_estimator(scenario: Scenario) -> BoxEstimator | None:
+    """The estimator `extraction.estimator` names: the sensor-model fit, or None for the
+    cell box."""
+    e = scenario.extraction
+    if e.estimator == "cells":
+        return None
+    if e.estimator != "model":
+        raise ScenarioError(f"field 'extraction.estimator': expected 'model' or 'cells', got "
+                            f"{e.estimator!r}")
+    return BoxEstimator(sensor_params(scenario), scenario.cell.table_height)
 
 
 def extraction_params(scenario: Scenario) -> ExtractionParams:

@@ -102,6 +102,22 @@ class SensorConfig:
 
 
 @dc.dataclass
+class DeviceConfig:
+    """Simulation only: how the simulated VL53L8CX behaves where it should differ from the model
+    the software assumes (`sensor:`, what a calibration produces). An unset field takes the
+    model's value. Perception and planning never read this section, so an estimator can be
+    scored on a device that is not its own model."""
+
+    # Share of a zone a surface must cover to be reported.
+    min_share: float | None = None
+    # Depth gap (mm) that separates two surfaces within one zone.
+    cluster_gap_mm: float | None = None
+    # Noise: sigma = max(sigma0_mm, noise_k * distance).
+    sigma0_mm: float | None = None
+    noise_k: float | None = None
+
+
+@dc.dataclass
 class MappingConfig:
     """The occupancy map (OctoMap semantics, docs/mapping.md)."""
 
@@ -143,6 +159,10 @@ class ExtractionConfig:
     # Boxes enclose the occupied cells (True) or their centres (False). Edge zones already put
     # points up to half a zone beyond an edge; enclosing the cells adds a cell more.
     enclose_cells: bool = False
+    # The reported box: "model", fitted to the raw zone readings through the sensor model
+    # (core/box_fit.py, the product's default), or "cells", around the occupied cells of the
+    # cluster (the paper's).
+    estimator: str = "model"
 
 
 def default_visualization() -> VisualizationConfig:
@@ -172,6 +192,7 @@ class Scenario:
     cell: CellConfig = dc.field(default_factory=CellConfig)
     object: ObjectConfig = dc.field(default_factory=ObjectConfig)
     sensor: SensorConfig = dc.field(default_factory=SensorConfig)
+    device: DeviceConfig = dc.field(default_factory=DeviceConfig)
     mapping: MappingConfig = dc.field(default_factory=MappingConfig)
     extraction: ExtractionConfig = dc.field(default_factory=ExtractionConfig)
     planner: PlannerParams = dc.field(default_factory=PlannerParams)

@@ -20,7 +20,7 @@ from lrnbv_drake.station.cell_models import (
     apply_visualization,
     fixed_pose,
 )
-from lrnbv_drake.station.parts import sensor_params
+from lrnbv_drake.station.parts import device_params
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.systems.sensor_pose import SensorPose
 from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer
@@ -41,7 +41,7 @@ def make_sim_cell(scenario: Scenario, meshcat: Meshcat | None = None) -> Cell:
     sensor = builder.AddNamedSystem("tof", ToFSensor(
         parent_frame_id=plant.GetBodyFrameIdOrThrow(tof_frame.body().index()),
         X_PS=tof_frame.GetFixedPoseInBodyFrame(),
-        params=sensor_params(scenario),
+        params=device_params(scenario),
         seed=scenario.seed,
         period=scenario.sensor.period,
     ))
