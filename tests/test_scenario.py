@@ -77,7 +77,9 @@ def _leaves(data, path=""):
 
 def _one_of_everything():
     return override(load_scenario(filename=ONE_OF_EVERYTHING),
-                    {"cell": {"directives": str(MODELS_DIR / "cell" / "cell.dmd.yaml")}})
+                    {"cell": {"directives": str(MODELS_DIR / "cell" / "cell.dmd.yaml")},
+                     "packing": {"containers": str(MODELS_DIR / "containers"
+                                                   / "shipping_boxes.yaml")}})
 
 
 def test_one_of_everything_sets_every_field_away_from_its_default():
@@ -102,6 +104,8 @@ def test_one_of_everything_runs_a_short_episode(tmp_path):
     frames = np.load(tmp_path / "frames.npz")
     assert frames["distance_mm"].shape == (3, 4, 4)  # the 4x4 mode reached the sensor
     assert report["seed"] == 3 and report["object"] == "vertical_box"
+    # The cell box has no interval: the container's margin is packing.fixed_margin.
+    assert report["container"]["margin"] == [0.012] * 3
 
 
 def test_an_override_replaces_only_the_fields_it_names():

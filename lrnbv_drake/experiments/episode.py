@@ -260,7 +260,7 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
                              np.array(report["estimated_box"]["dims"]),
                              report["estimated_box"]["yaw"]))
     report["metrics"] = {**episode_metrics(scenario, placed, run.log, estimated).to_dict(),
-                         **accuracy_metrics(scenario, placed, run.log, report["estimated_box"])}
+                         **accuracy_metrics(scenario, placed, run.log, report)}
     if run.fault is not None:
         report["fault"] = run.fault
     write_outputs(out_dir, run, report, meshcat)

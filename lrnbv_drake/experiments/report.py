@@ -15,7 +15,8 @@ from lrnbv_drake.core.acquisition import EpisodeLog
 from lrnbv_drake.core.box_fit import BoxFit
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.objects import PlacedObject, sample_surface
-from lrnbv_drake.station.parts import box_estimator
+from lrnbv_drake.core.packing import PackingDecision, choose_container, packing_metrics
+from lrnbv_drake.station.parts import box_estimator, container_catalogue
 from lrnbv_drake.station.scenario import Scenario
 
 #: Spacing of the surface samples the coverage metric counts, metres (threshold / 2).
@@ -81,6 +82,7 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
     started = time.perf_counter()
     box, fit = estimate_box(scenario, episode_log)
     estimate_seconds = time.perf_counter() - started
+    decision = packing_decision(scenario, box, fit)
     return {
         "planner": planner,
         "object": scenario.object.name,
@@ -90,6 +92,7 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
         "termination": termination,
         "n_poses": len(episode_log.acquisitions),
         "estimated_box": _box_entry(scenario, box, fit),
+        "container": _container_entry(decision, fit),
         "extraction": final.reason if final is not None else "no extraction",
         "poses": [{
             "index": a.index,
@@ -120,6 +123,37 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
     }
 
 
+def packing_decision(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None
+                     ) -> PackingDecision | None:
+    """The container for the estimated box: its margin is the interval's outer half (the
+    sensor-model fit) or `packing.fixed_margin` (the cell box); None without a box."""
+    if box is None:
+        return None
+    margin = (np.maximum(fit.dims_upper - box.dims, 0.0) if fit is not None
+              else np.full(3, scenario.packing.fixed_margin))
+    return choose_container(box.dims, margin, scenario.packing.clearance,
+                            container_catalogue(scenario))
+
+
+def _container_entry(decision: PackingDecision | None, fit: BoxFit | None
+                     ) -> dict[str, Any] | None:
+    if decision is None:
+        return None
+    chosen = decision.container
+    return {
+        "name": None if chosen is None else chosen.name,
+        "inner": None if chosen is None else list(chosen.inner),
+        "cost": None if chosen is None else chosen.cost,
+        "orientation": decision.orientation,
+        "required": decision.required.tolist(),
+        "margin": decision.margin.tolist(),
+        "margin_from": ("the estimate's 90 % profile interval" if fit is not None
+                        else "packing.fixed_margin"),
+        "clearance": decision.clearance,
+        "reason": decision.reason,
+    }
+
+
 def _box_entry(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None
                ) -> dict[str, Any] | None:
     if box is None:
@@ -145,9 +179,11 @@ def episode_metrics(scenario: Scenario, placed: PlacedObject, episode_log: Episo
 
 
 def accuracy_metrics(scenario: Scenario, placed: PlacedObject, episode_log: EpisodeLog,
-                     report_box: dict[str, Any] | None) -> dict[str, Any]:
+                     report: dict[str, Any]) -> dict[str, Any]:
     """The box in millimetres against the truth: per-dimension errors, whether the truth lies
-    in the reported interval, and poses-to-5 mm and -10 mm (`metrics.poses_to_accuracy`)."""
+    in the reported interval, poses-to-5 mm and -10 mm (`metrics.poses_to_accuracy`), and
+    the container against the one the true box gets (`packing.packing_metrics`)."""
+    report_box = report["estimated_box"]
     true = metrics.true_box(placed.mesh.vertices, scenario.cell.table_height)
     errors = errors_after_each_pose(scenario, episode_log, true)
     out: dict[str, Any] = {
@@ -160,6 +196,14 @@ def accuracy_metrics(scenario: Scenario, placed: PlacedObject, episode_log: Epis
             [None if np.isnan(v) else round(float(v) * 1000, 2) for v in row]
             for row in errors],
     }
+    container = report.get("container")
+    if container is not None:
+        catalogue = container_catalogue(scenario)
+        chosen = next((c for c in catalogue if c.name == container["name"]), None)
+        decision = PackingDecision(chosen, np.array(container["required"]),
+                                   np.array(container["margin"]), container["clearance"],
+                                   container["orientation"], container["reason"])
+        out["packing"] = packing_metrics(decision, true.dims, catalogue)
     if report_box is not None and "dims_lower" in report_box:
         lower, upper = np.array(report_box["dims_lower"]), np.array(report_box["dims_upper"])
         out["truth_in_interval"] = ((lower <= true.dims) & (true.dims <= upper)).tolist()

@@ -29,7 +29,7 @@ from pydrake.visualization import ApplyVisualizationConfig
 from lrnbv_drake.core import objects
 from lrnbv_drake.core.robot_safety import RobotInterface
 from lrnbv_drake.drivers.tof_serial import ToFSerialReader
-from lrnbv_drake.station.resources import make_parser
+from lrnbv_drake.station.resources import make_parser, resolve_url
 from lrnbv_drake.station.scenario import Scenario, ScenarioError
 
 _log = logging.getLogger(__name__)
@@ -103,8 +103,7 @@ def add_cell_models(plant: MultibodyPlant, scenario: Scenario) -> CellModels:
     """
     parser = make_parser(plant)
     directives_url = scenario.cell.directives
-    directives_path = parser.package_map().ResolveUrl(directives_url) \
-        if directives_url.startswith("package://") else directives_url
+    directives_path = resolve_url(directives_url)
     if not Path(directives_path).is_file():
         raise ScenarioError(f"field 'cell.directives': no such file '{directives_url}'")
     ProcessModelDirectives(LoadModelDirectives(directives_path), plant, parser)

@@ -4,6 +4,7 @@ every field is read in one place and a new field has one home."""
 from __future__ import annotations
 
 import dataclasses as dc
+from pathlib import Path
 
 import numpy as np
 
@@ -11,6 +12,7 @@ from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.box_fit import BoxEstimator
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.objects import PlacedObject
+from lrnbv_drake.core.packing import CatalogueError, Container, load_catalogue
 from lrnbv_drake.core.perception import ExtractionParams
 from lrnbv_drake.core.planning.heu import HeuPolicy
 from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy
@@ -18,6 +20,7 @@ from lrnbv_drake.core.planning.policy import ViewpointPolicy
 from lrnbv_drake.core.robot_safety import SafetyLimits
 from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams, ZoneGeometry
 from lrnbv_drake.station.motion import MotionPlanner
+from lrnbv_drake.station.resources import resolve_url
 from lrnbv_drake.station.scenario import Scenario, ScenarioError
 from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
 
@@ -106,6 +109,25 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
             ik=motion.ik_batch, collision_free=motion.collision_free,
             table_height=scenario.cell.table_height, seed=scenario.seed, variant=planner)
     raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
+
+
+def container_catalogue(scenario: Scenario) -> list[Container]:
+    """The containers `packing.containers` names (a package URL or a file).
+
+    Raises:
+        ScenarioError: the file is missing or not a catalogue, naming the field.
+    """
+    url = scenario.packing.containers
+    path = Path(resolve_url(url))
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ScenarioError(f"field 'packing.containers': cannot read {url} ({e.strerror})") \
+            from e
+    try:
+        return load_catalogue(text, source=str(url))
+    except CatalogueError as e:
+        raise ScenarioError(f"field 'packing.containers': {e}") from e
 
 
 def safety_limits(scenario: Scenario, X_W_base: np.ndarray, X_tool0_S: np.ndarray

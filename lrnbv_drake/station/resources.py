@@ -25,6 +25,16 @@ def package_url(relative: str) -> str:
     return f"package://{PACKAGE_NAME}/{relative}"
 
 
+def resolve_url(url: str) -> str:
+    """A file path for a `package://` URL (through Drake's package map, offline) or a path
+    given as it is."""
+    if not url.startswith("package://"):
+        return url
+    with _drake_models_registration_allowed():
+        parser = _offline(Parser(MultibodyPlant(time_step=0.0)))
+    return parser.package_map().ResolveUrl(url)
+
+
 def _add_models_package(parser: Parser) -> Parser:
     """Registers models/ with a parser (idempotent) and returns the parser."""
     package_map = parser.package_map()

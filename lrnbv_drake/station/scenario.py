@@ -118,6 +118,18 @@ class DeviceConfig:
 
 
 @dc.dataclass
+class PackingConfig:
+    """The packing decision after the episode (core/packing.py)."""
+
+    # The container catalogue: a package URL or a file (models/containers/ has the default).
+    containers: str = package_url("containers/shipping_boxes.yaml")
+    # Added to every dimension on top of the estimate's margin, metres (room to pack).
+    clearance: float = 0.005
+    # The estimate's margin when it has no interval (the cell box), metres per dimension.
+    fixed_margin: float = 0.01
+
+
+@dc.dataclass
 class MappingConfig:
     """The occupancy map (OctoMap semantics, docs/mapping.md)."""
 
@@ -193,6 +205,7 @@ class Scenario:
     object: ObjectConfig = dc.field(default_factory=ObjectConfig)
     sensor: SensorConfig = dc.field(default_factory=SensorConfig)
     device: DeviceConfig = dc.field(default_factory=DeviceConfig)
+    packing: PackingConfig = dc.field(default_factory=PackingConfig)
     mapping: MappingConfig = dc.field(default_factory=MappingConfig)
     extraction: ExtractionConfig = dc.field(default_factory=ExtractionConfig)
     planner: PlannerParams = dc.field(default_factory=PlannerParams)

@@ -1,0 +1,94 @@
+"""The packing decision (core/packing.py) on hand-worked cases."""
+
+import numpy as np
+import pytest
+
+from lrnbv_drake.core.packing import (
+    CatalogueError,
+    Container,
+    choose_container,
+    load_catalogue,
+    packing_metrics,
+)
+from lrnbv_drake.station.parts import container_catalogue
+from lrnbv_drake.station.scenario import Scenario
+
+FLAT = Container("flat", (0.40, 0.30, 0.10), 0.50)
+TALL = Container("tall", (0.20, 0.20, 0.40), 0.60)
+BIG = Container("big", (0.50, 0.40, 0.40), 1.00)
+NONE = np.zeros(3)
+
+
+def test_a_box_that_fits_only_stood_on_its_end_is_stood_on_its_end():
+    # 0.35 x 0.12 x 0.25: `flat` is too low (0.10) and `tall` too narrow (0.20 < 0.25) in every
+    # orientation; `upright` (0.30 x 0.13 x 0.36) holds it only with its length up and its
+    # height along the container's length: (0.25, 0.12, 0.35).
+    upright = Container("upright", (0.30, 0.13, 0.36), 0.40)
+    decision = choose_container(np.array([0.35, 0.12, 0.25]), NONE, 0.0, [FLAT, TALL, upright])
+    assert decision.container == upright
+    assert decision.orientation == (2, 1, 0)
+    np.testing.assert_allclose(decision.required[list(decision.orientation)],
+                               [0.25, 0.12, 0.35])
+
+
+def test_the_margin_pushes_the_box_into_the_next_size():
+    dims = np.array([0.38, 0.28, 0.08])
+    assert choose_container(dims, NONE, 0.01, [FLAT, BIG]).container == FLAT  # 0.39 x 0.29
+    decision = choose_container(dims, np.array([0.015, 0.0, 0.0]), 0.01, [FLAT, BIG])
+    assert decision.container == BIG  # 0.405 > 0.40
+    np.testing.assert_allclose(decision.required, [0.405, 0.29, 0.09])
+
+
+def test_nothing_fits_names_the_dimension_that_fails():
+    decision = choose_container(np.array([0.20, 0.70, 0.10]), NONE, 0.005, [FLAT, TALL, BIG])
+    assert decision.container is None and decision.orientation is None
+    assert "width of 0.705 m exceeds every container" in decision.reason
+    assert "0.500 m" in decision.reason
+    wide = choose_container(np.array([0.45, 0.45, 0.45]), NONE, 0.0, [FLAT, TALL, BIG])
+    assert wide.container is None and "in any orientation" in wide.reason
+
+
+def test_ties_go_to_the_cheaper_then_the_smaller_and_no_costs_mean_the_smallest():
+    a = Container("a", (0.30, 0.30, 0.30), 1.0)
+    b = Container("b", (0.40, 0.40, 0.40), 1.0)
+    c = Container("c", (0.50, 0.50, 0.50), 0.9)
+    dims = np.array([0.2, 0.2, 0.2])
+    assert choose_container(dims, NONE, 0.0, [a, b, c]).container == c  # the cheapest
+    assert choose_container(dims, NONE, 0.0, [b, a]).container == a  # same cost: smaller
+    free = [Container("x", (0.5, 0.5, 0.5)), Container("y", (0.3, 0.3, 0.3), 5.0)]
+    assert choose_container(dims, NONE, 0.0, free).container.name == "y"  # by volume
+
+
+def test_fits_and_right_size_against_the_true_box():
+    catalogue = [FLAT, BIG]
+    generous = choose_container(np.array([0.38, 0.28, 0.08]), np.full(3, 0.03), 0.0,
+                                catalogue)
+    assert generous.container == BIG
+    m = packing_metrics(generous, np.array([0.38, 0.28, 0.08]), catalogue)
+    assert m["fits"] and not m["right_size"] and m["right_size_container"] == "flat"
+    assert m["wasted_volume"] == pytest.approx(0.5 * 0.4 * 0.4 / (0.4 * 0.3 * 0.1) - 1)
+    short = choose_container(np.array([0.36, 0.28, 0.08]), NONE, 0.0, catalogue)
+    m = packing_metrics(short, np.array([0.42, 0.28, 0.08]), catalogue)  # underestimated
+    assert not m["fits"] and not m["right_size"]
+
+
+@pytest.mark.parametrize("text, words", [
+    ("boxes: []", "expected 'containers:'"),
+    ("containers: [{name: a, inner: [0.1, 0.2]}]", "containers[0] (a): 'inner'"),
+    ("containers: [{name: a, inner: [0.1, 0.2, 0.3], cost: -1}]", "'cost' must be"),
+    ("containers: [{name: a, inner: [1, 1, 1]}, {name: a, inner: [1, 1, 1]}]", "new non-empty"),
+    ("containers: [{name: a, inner: [1, 1, 1], colour: red}]", "expected a mapping"),
+])
+def test_a_bad_catalogue_is_refused_naming_the_entry(text, words):
+    with pytest.raises(CatalogueError, match=r"my\.yaml") as error:
+        load_catalogue(text, source="my.yaml")
+    assert words in str(error.value)
+
+
+def test_the_shipped_catalogue_holds_every_paper_object_in_a_sensible_box():
+    catalogue = container_catalogue(Scenario())
+    expected = {(0.30, 0.20, 0.12): "L 32x23x15", (0.12, 0.10, 0.25): "L-tall 20x20x30",
+                (0.150, 0.085, 0.060): "S 20x15x10", (0.20, 0.20, 0.05): "M-flat 30.5x22x10"}
+    for dims, name in expected.items():
+        decision = choose_container(np.array(dims), np.full(3, 0.01), 0.005, catalogue)
+        assert decision.container.name == name, (dims, decision.reason)
