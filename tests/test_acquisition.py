@@ -9,6 +9,7 @@ from lrnbv_drake.core.acquisition import (
     AcquisitionSequencer,
     EpisodeLog,
     Mode,
+    cycle_time,
     motion_start,
 )
 from lrnbv_drake.core.motion import MotionFailure, MotionPlan
@@ -178,3 +179,28 @@ def test_bad_periods_and_caps_are_refused_with_their_names():
     with pytest.raises(ValueError, match="max_poses"):
         AcquisitionSequencer(Scripted([]), ToX(), period=PERIOD, frame_period=FRAME_PERIOD,
                              max_poses=0)
+
+
+def test_the_cycle_time_is_the_trajectories_plus_the_waits_for_frames():
+    """Two 1 s ramps (ToX's trajectories last 1 s) and frames that arrive 0.25 s and 0.35 s
+    after each stop: motion 2 s, settling 0.6 s, and the planning time measured."""
+    policy = Scripted([Proposal(candidates=[_pose(0.5)]), Proposal(candidates=[_pose(0.2)])])
+    dut = AcquisitionSequencer(policy, ToX(), period=PERIOD, frame_period=FRAME_PERIOD)
+    inputs = Inputs()
+    s = dut.step(dut.initial_state(np.zeros(6)), 0.0, inputs)  # plan at 0, stop at 1.0
+    sequence = 0
+    for stop, wait in ((1.0, 0.25), (2.5, 0.35)):
+        s = dut.step(s, stop, inputs)
+        assert s.mode is Mode.SETTLE
+        sequence += 1
+        inputs.frame_value = _frame(sequence, stop + FRAME_PERIOD)
+        s = dut.step(s, stop + wait, inputs)
+        s = dut.step(s, stop + wait + 2 * PERIOD, inputs)  # the map's wait
+        s = dut.step(s, 1.5 if sequence == 1 else 3.0, inputs)  # plan (or finish)
+    cycle = cycle_time(s.log, other_computation=0.5)
+    assert s.log.travel_seconds == [1.0, 1.0]
+    assert s.log.settle_seconds == pytest.approx([0.25, 0.35])
+    assert (cycle.motion, cycle.settle) == (2.0, pytest.approx(0.6))
+    planning = sum(s.log.policy_seconds) + sum(s.log.motion_seconds)
+    assert cycle.computation == pytest.approx(planning + 0.5)
+    assert cycle.total == pytest.approx(2.6 + planning + 0.5)

@@ -61,6 +61,10 @@ class EpisodeLog:
     # Seconds spent choosing each viewpoint (policy) and planning its motion.
     policy_seconds: list[float] = dc.field(default_factory=list)
     motion_seconds: list[float] = dc.field(default_factory=list)
+    # Cell time, seconds: each accepted trajectory's duration, and each acquisition's wait
+    # from the arm's stop (or the start) to the frame used.
+    travel_seconds: list[float] = dc.field(default_factory=list)
+    settle_seconds: list[float] = dc.field(default_factory=list)
     termination: str = ""
     # The last accepted proposal's drawable data (tree, cache, ROI), with its "step" number and
     # the chosen "X_WS". Kept here, not in the copied state: its arrays are large.
@@ -85,7 +89,32 @@ def carried_on(history: EpisodeLog) -> EpisodeLog:
                             + [0.0] * (aligned - len(history.clustering_seconds))),
         motion_failures=list(history.motion_failures),
         policy_seconds=list(history.policy_seconds),
-        motion_seconds=list(history.motion_seconds), termination="")
+        motion_seconds=list(history.motion_seconds),
+        travel_seconds=list(history.travel_seconds),
+        settle_seconds=list(history.settle_seconds), termination="")
+
+
+@dc.dataclass(frozen=True)
+class CycleTime:
+    """What the cell's time went on, seconds: the arm moving along its trajectories, waiting
+    for a still frame, and the computer choosing, planning, mapping and estimating (on the
+    real cell the arm waits for it; in simulation it costs no simulated time)."""
+
+    motion: float
+    settle: float
+    computation: float
+
+    @property
+    def total(self) -> float:
+        return self.motion + self.settle + self.computation
+
+
+def cycle_time(log: EpisodeLog, other_computation: float = 0.0) -> CycleTime:
+    """The episode's `CycleTime`: the trajectories' durations, the waits for frames, and the
+    measured planning time plus `other_computation` (map, clustering, box estimate)."""
+    return CycleTime(motion=float(sum(log.travel_seconds)), settle=float(sum(log.settle_seconds)),
+                     computation=float(sum(log.policy_seconds) + sum(log.motion_seconds)
+                                       + other_computation))
 
 
 def motion_start(hold: np.ndarray, measured: np.ndarray) -> np.ndarray:
@@ -197,6 +226,7 @@ class AcquisitionSequencer:
         s.log.acquisitions.append(Acquisition(
             index=len(s.log.acquisitions), time=t, q=np.asarray(inputs.q(), float).copy(),
             X_WS=inputs.X_WS(), frame=frame, info=s.pending_info))
+        s.log.settle_seconds.append(t - s.t_stop)
         s.pending_info = {}
         s.mode, s.t_ready = Mode.WAIT_MAP, t + 1.5 * self._period
 
@@ -228,6 +258,7 @@ class AcquisitionSequencer:
             if plan.ok:
                 self.policy.accepted(i, observation)
                 s.trajectory, s.mode = plan.trajectory, Mode.MOVE
+                s.log.travel_seconds.append(plan.trajectory.end_time() - t)
                 per_candidate = proposal.candidate_info[i] if proposal.candidate_info else {}
                 s.pending_info = {**proposal.info, **per_candidate, CANDIDATE_RANK: i}
                 s.log.plan = {**proposal.debug, "step": len(s.log.policy_seconds),

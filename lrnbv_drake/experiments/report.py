@@ -11,7 +11,7 @@ import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
 
 from lrnbv_drake.core import metrics
-from lrnbv_drake.core.acquisition import EpisodeLog
+from lrnbv_drake.core.acquisition import EpisodeLog, cycle_time
 from lrnbv_drake.core.box_fit import BoxFit
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.objects import PlacedObject, sample_surface
@@ -83,6 +83,8 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
     box, fit = estimate_box(scenario, episode_log)
     estimate_seconds = time.perf_counter() - started
     decision = packing_decision(scenario, box, fit)
+    cycle = cycle_time(episode_log, other_computation=(
+        sum(map_update_seconds) + sum(episode_log.clustering_seconds) + estimate_seconds))
     return {
         "planner": planner,
         "object": scenario.object.name,
@@ -93,6 +95,8 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
         "n_poses": len(episode_log.acquisitions),
         "estimated_box": _box_entry(scenario, box, fit),
         "container": _container_entry(decision, fit),
+        "cycle_time": {"motion_s": cycle.motion, "settle_s": cycle.settle,
+                       "computation_s": cycle.computation, "total_s": cycle.total},
         "extraction": final.reason if final is not None else "no extraction",
         "poses": [{
             "index": a.index,
