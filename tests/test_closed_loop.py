@@ -36,11 +36,12 @@ def test_lrnbv_on_the_horizontal_box_ends_by_the_paper_rule_with_a_good_box(lrnb
     assert len(timing["clustering_s"]) == report["n_poses"]
     assert len(timing["tree_expansion_s"]) == report["n_poses"] - 1
     # The cell's time: the arm's motion and the waits for frames are the simulated time but
-    # for the loop's own ticks (at most three update periods a pose: the end of a motion,
-    # the map's 1.5-period wait); the computation is what was measured.
+    # for the loop's own ticks, at most four update periods a pose (the tick that sees a
+    # motion end, two for the map's 1.5-period wait, one to plan); the computation is what
+    # was measured.
     cycle, period = report["cycle_time"], Scenario().sensor.period / 2
     moving = cycle["motion_s"] + cycle["settle_s"]
-    assert timing["simulated_seconds"] - 3 * period * report["n_poses"] <= moving
+    assert timing["simulated_seconds"] - 4 * period * report["n_poses"] <= moving
     assert moving <= timing["simulated_seconds"]
     assert cycle["computation_s"] >= sum(p["policy_s"] for p in timing["planning_steps"])
     assert cycle["total_s"] == pytest.approx(moving + cycle["computation_s"])
