@@ -41,6 +41,7 @@ from lrnbv_drake.experiments.report import (
     episode_report,
     json_default,
 )
+from lrnbv_drake.experiments.report_page import report_page
 from lrnbv_drake.station.cell import Cell, make_cell
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import (
@@ -213,8 +214,9 @@ def run_loop(parts: EpisodeDiagram, *, realtime_rate: float = 0.0,
 
 
 def write_outputs(out_dir: Path, run: EpisodeRun, report: dict[str, Any],
-                  meshcat: Meshcat | None) -> None:
-    """frames.npz, report.json and (with Meshcat) replay.html, each written atomically."""
+                  meshcat: Meshcat | None, scenario: Scenario) -> None:
+    """frames.npz, report.json, report.html and (with Meshcat) replay.html, each written
+    atomically, the data first."""
     save_frames(out_dir / "frames.npz", run.log.acquisitions)
     write_atomically(out_dir / "report.json", json.dumps(report, indent=2,
                                                          default=json_default))
@@ -222,6 +224,8 @@ def write_outputs(out_dir: Path, run: EpisodeRun, report: dict[str, Any],
         meshcat.StopRecording()
         meshcat.PublishRecording()
         write_atomically(out_dir / "replay.html", meshcat.StaticHtml())
+    write_atomically(out_dir / "report.html", report_page(
+        report, run.log.acquisitions, zone_geometry(scenario), replay=meshcat is not None))
 
 
 @dc.dataclass
@@ -263,7 +267,7 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
                          **accuracy_metrics(scenario, placed, run.log, report)}
     if run.fault is not None:
         report["fault"] = run.fault
-    write_outputs(out_dir, run, report, meshcat)
+    write_outputs(out_dir, run, report, meshcat, scenario)
     if run.error is not None:
         raise run.error
     if run.fault == "interrupted":

@@ -191,6 +191,8 @@ def accuracy_metrics(scenario: Scenario, placed: PlacedObject, episode_log: Epis
     true = metrics.true_box(placed.mesh.vertices, scenario.cell.table_height)
     errors = errors_after_each_pose(scenario, episode_log, true)
     out: dict[str, Any] = {
+        "true_box": {"center": true.center.tolist(), "dims": true.dims.tolist(),
+                     "yaw": float(true.yaw)},
         "dim_errors_mm": (None if report_box is None else
                           np.round((np.array(report_box["dims"]) - true.dims) * 1000, 2)
                           .tolist()),

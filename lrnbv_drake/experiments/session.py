@@ -371,7 +371,7 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
                            resumed_from=len(recorded),
                            realtime_resets=monitors[-1].realtime_resets)
     write_outputs(out_dir, run, _report(planner, scenario, parts, run, result, dry_run),
-                  meshcat)
+                  meshcat, scenario)
     if run.error is not None:
         raise run.error
     return result
