@@ -23,7 +23,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/lrnbv run --planner lrnbv --object horizontal_box --seed 0 --out $(OUT)
+	$(BIN)/lrnbv run --planner lrnbv --object horizontal_box --seed 0 --out $(OUT) --overwrite
 
 test: $(STAMP)
 	$(BIN)/ruff check .

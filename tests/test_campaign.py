@@ -271,10 +271,18 @@ def test_figures_are_drawn(synthetic_campaign):
     length = fig.axes[0]
     assert [t.get_text() for t in length.get_xticklabels()] == ["LR-NBV", "NBV", "HEU"]
     (true_line,) = [line for line in length.get_lines() if line.get_linestyle() == "--"]
-    assert true_line.get_ydata()[0] == pytest.approx(0.30)
-    # The dots are the episodes: LR-NBV's five lengths, 0.300 to 0.308 m.
+    assert true_line.get_ydata()[0] == 0.0  # errors around the truth
+    # The dots are the episodes: LR-NBV's five length errors, 0 to 8 mm.
     dots = length.collections[0].get_offsets()[:, 1]
-    np.testing.assert_allclose(sorted(dots), 0.30 + 0.002 * np.arange(5))
+    np.testing.assert_allclose(sorted(dots), 2.0 * np.arange(5))
+    # L, W and H share one range about 0 that holds the largest error (HEU's 20 mm in L) with
+    # a margin, so a 2 mm gap looks as small as it is; pose counts have whole ticks from 0.
+    (shared,) = {fig.axes[j].get_ylim() for j in range(3)}
+    assert shared == pytest.approx((-23.0, 23.0))
+    poses = fig.axes[[p.column for p in FIG3_PANELS].index("n_poses")]
+    ticks = [t for t in poses.get_yticks() if 0 <= t <= poses.get_ylim()[1]]
+    assert ticks[0] == 0 and all(float(t).is_integer() for t in ticks)
+    assert [p.title[:3] for p in FIG3_PANELS] == ["(a)"] * 4 + ["(b)"] * 3
     # The curves: LR-NBV's median reaches 0.8 after 7 poses (5..9) and holds it.
     curves = plot_coverage_curves(coverage_curves(records), ["horizontal_box"], ALL_PLANNERS,
                                   config.out_dir / "again_curves.png")

@@ -58,7 +58,7 @@ def test_the_example_scenario_loads():
     dut = load_scenario(filename=Path(__file__).parent.parent / "examples" / "scenario.yaml")
     assert dut.seed == 7
     assert (dut.object.name, dut.object.yaw_deg) == ("vertical_box", 20.0)
-    assert dut.mapping.insertion == "cone"
+    assert dut.mapping.insertion == "ray"
     assert dut.planner.weights.density == 0.05
     assert dut.planner.num_cached_nodes == Scenario().planner.num_cached_nodes
 

@@ -229,6 +229,32 @@ def test_the_port_vanishing_and_returning_reconnects(
     assert (stats.reconnects, stats.frames, stats.gaps, stats.restarts) == (1, 2, 0, 0)
 
 
+def test_a_missing_port_fails_at_once_and_says_why_once(tmp_path: Path, capsys) -> None:
+    missing = tmp_path / "ttyACM9"
+    codes: list[int] = []
+    stream = threading.Thread(target=lambda: codes.append(
+        main(["sensor", "stream", "--port", str(missing), "--timeout", "0.1"])), daemon=True)
+    stream.start()
+    stream.join(WAIT)  # it used to wait for the port for ever, "waiting: ..." every timeout
+    assert main(["sensor", "record", "--port", str(missing), "--frames", "1", "--timeout",
+                 "0.1", "--out", str(tmp_path / "r.npz")]) == 2
+    assert codes == [2]
+    assert capsys.readouterr().err.count(f"no serial port {missing}: ") == 2
+    # The driver itself waits for a device to appear; its reason is given once, not nested
+    # in pyserial's "could not open port ...: [Errno 2] ...".
+    with ToFSerialReader(str(missing), reconnect_interval=0.05) as driver:
+        def reason() -> str:
+            try:
+                driver.wait_for_frame(0, timeout=0.01)
+            except SensorTimeout as e:
+                return str(e)
+            return ""
+
+        _eventually(lambda: "cannot open" in reason(), "the driver tries to open the port")
+        assert f"(cannot open {missing}: No such file or directory)" in reason()
+        assert "could not open port" not in reason() and "Errno" not in reason()
+
+
 def test_commands_reach_the_board_and_replies_come_back(
     board: FakeBoard, sensor: ToFSerialReader
 ) -> None:

@@ -8,21 +8,36 @@ module tells what `--out` DIR holds and how rerunning the same command resumes.
 from __future__ import annotations
 
 import argparse
+import dataclasses as dc
 import math
 import os
+import shlex
 import sys
 from pathlib import Path
 
+from lrnbv_drake.cli.arg_types import positive_int, seed
+from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir
+from lrnbv_drake.cli.run import EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from lrnbv_drake.experiments.campaign.plan import (
     BACKENDS,
     CampaignConfig,
     CampaignError,
     PlacementRange,
     load_objects,
+    plan_episodes,
 )
-from lrnbv_drake.experiments.campaign.run import run_campaign
+from lrnbv_drake.experiments.campaign.run import CampaignInterrupted, run_campaign
 from lrnbv_drake.experiments.episode import PLANNERS
 from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario
+from lrnbv_drake.station.scenario_checks import check_placement
+
+EPILOG = """\
+DIR receives summary.md, results.csv, figure.png and coverage_curves.png, rewritten after every
+run from every episode in DIR. Ctrl-C stops the running episodes at once, writes those outputs
+for the finished ones and prints the command that resumes.
+
+exit status: 0 every episode finished, 1 some failed (rerun the command to retry them), 2 bad
+input (nothing run), 130 interrupted by Ctrl-C."""
 
 
 def _planners(text: str) -> tuple[str, ...]:
@@ -33,16 +48,6 @@ def _planners(text: str) -> tuple[str, ...]:
             f"--planners '{text}': {', '.join(unknown) or 'none given'} not available; "
             f"expected a comma-separated subset of {', '.join(PLANNERS)}")
     return names
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'")
-    return value
 
 
 def _interval(text: str) -> tuple[float, float]:
@@ -60,26 +65,32 @@ def add_benchmark_command(subparsers: argparse._SubParsersAction) -> argparse.Ar
     default = PlacementRange()
     parser = subparsers.add_parser(
         "benchmark", help="run the paper's campaign: every planner on every object, N trials",
-        description=__doc__.split("\n\n")[0])
+        description=__doc__.split("\n\n")[0], epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--planners", type=_planners, default=PLANNERS,
                         help=f"comma-separated planners (default: {','.join(PLANNERS)})")
     parser.add_argument("--objects", default="paper",
                         help="paper (the four), all (every built-in), a folder of .obj/.stl/"
-                             ".ply meshes, or comma-separated built-in names or mesh files")
-    parser.add_argument("--trials", type=_positive_int, default=5,
+                             ".ply meshes, or comma-separated built-in names or mesh files "
+                             "(default: paper)")
+    parser.add_argument("--trials", type=positive_int, default=5,
                         help="trials per planner and object (default 5)")
-    parser.add_argument("--out", required=True, help="campaign folder; rerun to resume")
-    parser.add_argument("--jobs", type=_positive_int, default=os.cpu_count() or 1,
+    parser.add_argument("--out", required=True,
+                        help="campaign folder; rerun the same command to resume (planners, "
+                             "objects and trials may grow); a folder holding another kind "
+                             "of run is refused")
+    parser.add_argument("--jobs", type=positive_int, default=os.cpu_count() or 1,
                         help="episodes run at once (default: the CPU count)")
     parser.add_argument("--backend", choices=BACKENDS, default="local",
-                        help="local processes, or Ray tasks (needs the 'ray' extra)")
+                        help="local processes, or Ray tasks (needs the 'ray' extra) "
+                             "(default: local)")
     parser.add_argument("--ray-address",
                         help="a running Ray cluster (default: start a local one with --jobs CPUs)")
     parser.add_argument("--scenario", help="scenario YAML: cell, sensor, object scale and "
                                            "placement; its object is replaced by --objects")
-    parser.add_argument("--seed", type=int,
-                        help="base seed, from which each (object, trial) derives its own "
-                             "(default: the scenario's)")
+    parser.add_argument("--seed", type=seed,
+                        help="base seed, >= 0, from which each (object, trial) derives its "
+                             "own (default: the scenario's, 0)")
     parser.add_argument("--random-placement", action="store_true",
                         help="a random object x, y, yaw per trial (the same for every planner)")
     parser.add_argument("--x-range", type=_interval, default=default.x, metavar="MIN,MAX",
@@ -95,26 +106,43 @@ def add_benchmark_command(subparsers: argparse._SubParsersAction) -> argparse.Ar
 
 
 def config_from_args(args: argparse.Namespace) -> CampaignConfig:
-    """The campaign the parsed arguments describe; checks every object mesh loads."""
+    """The campaign the parsed arguments describe; checks every object mesh loads and every
+    episode's placement (as `lrnbv run` does) before anything runs."""
     scenario = load_scenario(filename=args.scenario) if args.scenario else Scenario()
     found = load_objects(args.objects, scenario.object.scale)
     placement = (PlacementRange(args.x_range, args.y_range, args.yaw_range)
                  if args.random_placement else None)
-    return CampaignConfig(
+    config = CampaignConfig(
         out_dir=Path(args.out), planners=tuple(args.planners), objects=found,
         trials=args.trials, scenario=scenario,
         seed=scenario.seed if args.seed is None else args.seed, placement=placement,
         jobs=args.jobs, backend=args.backend, ray_address=args.ray_address, replay=args.replay)
+    for episode in plan_episodes(dc.replace(config, planners=config.planners[:1])):
+        check_placement(episode.scenario)
+    return dc.replace(config, out_dir=prepare_out_dir(args.out, "benchmark"))
+
+
+def _command_line(args: argparse.Namespace) -> str:
+    """The command as typed, when `lrnbv.cli.main` recorded it."""
+    words = getattr(args, "command_line", None)
+    return shlex.join(words) if words else "lrnbv benchmark ... (as before)"
 
 
 def run_benchmark(args: argparse.Namespace) -> int:
-    """`lrnbv benchmark`: 0 when every episode finished, 1 when some failed, 2 on bad input."""
+    """`lrnbv benchmark`: 0 when every episode finished, 1 when some failed, 2 on bad input,
+    130 on Ctrl-C (the outputs then cover the episodes finished so far)."""
     try:
         config = config_from_args(args)
         records = run_campaign(config)
-    except (CampaignError, ScenarioError) as e:
+    except (CampaignError, ScenarioError, OutDirError) as e:
         print(f"lrnbv benchmark: error: {e}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
+    except CampaignInterrupted as e:
+        print(f"\nlrnbv benchmark: interrupted (Ctrl-C): {e}; the running ones were stopped. "
+              f"{args.out}/summary.md, results.csv and the figures cover every finished "
+              f"episode. Resume with the same command:\n  {_command_line(args)}",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
     failed = [r["campaign"]["episode"] for r in records if r["campaign"]["status"] != "ok"]
     print(f"{len(records) - len(failed)} of {len(records)} episodes finished; wrote "
           f"{config.out_dir}/results.csv, summary.md, figure.png, coverage_curves.png")

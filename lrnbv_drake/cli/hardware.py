@@ -13,13 +13,16 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
+from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir, remove_if_empty
 from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
 from lrnbv_drake.core.robot_safety import RobotConnectionError, RobotFault
-from lrnbv_drake.drivers.tof_serial import SensorError
+from lrnbv_drake.drivers.tof_serial import SensorError, check_port_exists
 from lrnbv_drake.experiments.episode import PLANNERS, make_meshcat
 from lrnbv_drake.experiments.session import SessionError, SessionResult, resume, run_session
 from lrnbv_drake.station.scenario import Scenario, ScenarioError
+from lrnbv_drake.station.scenario_checks import check_placement
 
 #: Exit codes: the planner ended the episode; a fault stopped it; it could not start.
 EXIT_DONE, EXIT_FAULT, EXIT_ERROR = 0, 1, 2
@@ -42,9 +45,10 @@ def add_hardware_commands(subparsers: argparse._SubParsersAction) -> None:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robot-ip", help="the UR controller's address (robot.robot_ip)")
     p.add_argument("--sensor-port", help="the sensor board's serial port (sensor.serial_port)")
-    p.add_argument("--out", help="output folder of a new session")
+    p.add_argument("--out", help="output folder of a new session (new, or empty)")
     add_scenario_arguments(p)
-    p.add_argument("--planner", choices=PLANNERS, default="lrnbv")
+    p.add_argument("--planner", choices=PLANNERS, default="lrnbv",
+                   help="viewpoint planner, as for `lrnbv run` (default: lrnbv)")
     p.add_argument("--dry-run", action="store_true",
                    help="rehearse: play the commands back in Meshcat with simulated frames; "
                         "nothing moves (the robot, if --robot-ip is given, is only read)")
@@ -87,6 +91,18 @@ def run_hardware_command(args: argparse.Namespace) -> int:
     if problem is not None:
         print(f"lrnbv hardware: error: {problem}", file=sys.stderr)
         return EXIT_ERROR
+    new_dir = None
+    try:
+        if args.resume is None:
+            scenario = _scenario(args)
+            check_placement(scenario)
+            if not args.dry_run and scenario.hardware.sensor_driver == "serial":
+                check_port_exists(scenario.sensor.serial_port)  # before reaching the robot
+            new_dir = None if Path(args.out).exists() else Path(args.out)
+            out_dir = prepare_out_dir(args.out, "hardware")
+    except (ScenarioError, OutDirError, SensorError) as e:
+        print(f"lrnbv hardware: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
     confirm = (lambda message: True) if args.yes else ask_on_stdin
     meshcat = make_meshcat(live=args.meshcat)
     if meshcat is not None:
@@ -96,12 +112,15 @@ def run_hardware_command(args: argparse.Namespace) -> int:
             result = resume(args.resume, confirm=confirm, meshcat=meshcat,
                             robot_ip=args.robot_ip, sensor_port=args.sensor_port)
         else:
-            result = run_session(_scenario(args), args.planner, args.out, confirm=confirm,
+            result = run_session(scenario, args.planner, out_dir, confirm=confirm,
                                  meshcat=meshcat, dry_run=args.dry_run)
     except (SessionError, ScenarioError, RobotConnectionError, RobotFault, SensorError,
             OSError) as e:
         print(f"lrnbv hardware: nothing moved: {e}", file=sys.stderr)
         return EXIT_ERROR
+    finally:
+        if new_dir is not None:  # a start that failed or was declined leaves no empty folder
+            remove_if_empty(new_dir)
     return _summarize(result)
 
 

@@ -88,10 +88,14 @@ def _stream(args: argparse.Namespace) -> int:
     if run.interrupted:
         print()
     print(format_stats(run.stats))
-    return 0
+    return 130 if run.interrupted else 0
 
 
 def _record(args: argparse.Namespace) -> int:
+    if args.out.exists() and not args.overwrite:
+        raise ValueError(f"--out {args.out} exists: choose another file, or pass --overwrite "
+                         "to replace it")
+
     def progress(count: int, frame: ToFFrame) -> None:
         print(f"\rrecorded {count}/{args.frames} (sequence {frame.sequence})", end="",
               flush=True)
@@ -134,7 +138,8 @@ def add_sensor_commands(subparsers: argparse._SubParsersAction) -> None:
         p.add_argument("--timeout", type=float, default=5.0,
                        help="seconds without a frame before complaining (default 5)")
 
-    p = commands.add_parser("stream", help="live 8x8 view; Ctrl-C stops and prints stats")
+    p = commands.add_parser("stream", help="live 8x8 view; Ctrl-C stops and prints stats "
+                                           "(exit status 130)")
     serial_args(p)
     p.add_argument("--frames", type=int, default=0, help="stop after N frames (default: never)")
 
@@ -142,6 +147,7 @@ def add_sensor_commands(subparsers: argparse._SubParsersAction) -> None:
     serial_args(p)
     p.add_argument("--frames", type=int, required=True, help="frames to record")
     p.add_argument("--out", type=Path, required=True, help="output .npz")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 
     p = commands.add_parser("characterize",
                             help="fit sigma = max(sigma0, k d) from flat-target recordings")

@@ -24,6 +24,10 @@ import trimesh
 
 OBJECTS_DIR = Path(__file__).resolve().parents[2] / "models" / "objects"
 MESH_SUFFIXES: tuple[str, ...] = (".obj", ".stl", ".ply")
+#: Most surface samples `sample_surface` draws: 50 m^2 at the coverage metric's 5 mm spacing,
+#: over six times the surface of the largest box the cell maps. A mesh read in the wrong units
+#: (150 m for a 150 mm part) would otherwise ask for billions of points, tens of GiB.
+MAX_SURFACE_SAMPLES = 2_000_000
 
 
 @dc.dataclass(frozen=True)
@@ -204,13 +208,23 @@ def sample_surface(
     seed: int = 0,
 ) -> np.ndarray:
     """(N, 3) points drawn uniformly by area over the surface, about one per `spacing`^2,
-    leaving out the faces resting on the table when `exclude_bottom` (the coverage reference)."""
+    leaving out the faces resting on the table when `exclude_bottom` (the coverage reference).
+
+    Raises:
+        ValueError: a spacing that is not a positive length, or more than
+            `MAX_SURFACE_SAMPLES` points (a mesh far too large, e.g. millimetres read as metres).
+    """
     if not (math.isfinite(spacing) and spacing > 0):
         raise ValueError(f"spacing must be a positive finite length, m; got {spacing!r}")
     weights = np.array(mesh.area_faces, dtype=float)
     if exclude_bottom:
         weights[resting_faces(mesh, table_height)] = 0.0
     count = round(weights.sum() / spacing**2)
+    if count > MAX_SURFACE_SAMPLES:
+        raise ValueError(
+            f"the mesh is {max(mesh.extents):.3g} m across with {weights.sum():.3g} m^2 of "
+            f"surface: {count:.3g} samples at {spacing:g} m spacing, more than the "
+            f"{MAX_SURFACE_SAMPLES:.0e} allowed; if it is in millimetres, scale it by 0.001")
     if count == 0:
         return np.zeros((0, 3))
     points, _ = trimesh.sample.sample_surface(mesh, count, face_weight=weights, seed=seed)

@@ -14,11 +14,13 @@ from __future__ import annotations
 import collections
 import dataclasses as dc
 import logging
+import os
 import threading
 import time
 from types import TracebackType
 
 import serial
+from serial.tools import list_ports
 
 from lrnbv_drake.core.sensor import ToFFrame
 from lrnbv_drake.core.tof_protocol import (
@@ -52,6 +54,25 @@ class SensorError(RuntimeError):
 
 class SensorTimeout(SensorError, TimeoutError):
     """No suitable frame arrived in time; the message names the port and the silence."""
+
+
+def describe_error(error: BaseException) -> str:
+    """The reason of an I/O error, once: pyserial nests the OS error in its own message
+    ("could not open port X: [Errno 2] No such file or directory: 'X'")."""
+    errno = getattr(error, "errno", None)
+    return os.strerror(errno) if isinstance(errno, int) else str(error)
+
+
+def check_port_exists(port: str) -> None:
+    """Raises SensorError at once for a device path (/dev/...) that does not exist, naming the
+    serial ports that do: the driver itself waits for a missing device to appear (a board
+    being plugged in), which at the start of a command is a mistyped or unplugged port."""
+    if not port.startswith("/") or os.path.exists(port):
+        return  # a URL (loop://, socket://) or a Windows name (COM3) is pyserial's to open
+    ports = sorted(p.device for p in list_ports.comports())
+    raise SensorError(f"no serial port {port}: " + (
+        f"the ports here are {', '.join(ports)}" if ports else
+        "no serial port is connected (is the board plugged in?)"))
 
 
 @dc.dataclass
@@ -296,7 +317,7 @@ class ToFSerialReader:
                     self._port_name, baudrate=self._baud, timeout=self._read_timeout
                 )
             except (serial.SerialException, OSError, ValueError) as e:
-                self._note_error(f"cannot open {self._port_name}: {e}")
+                self._note_error(f"cannot open {self._port_name}: {describe_error(e)}")
                 self._stop.wait(self._reconnect_interval)
                 continue
             with self._cond:

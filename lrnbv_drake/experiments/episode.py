@@ -40,6 +40,7 @@ from lrnbv_drake.experiments.report import (
     episode_metrics,
     episode_report,
     json_default,
+    rounded,
 )
 from lrnbv_drake.experiments.report_page import report_page
 from lrnbv_drake.station.cell import Cell, make_cell
@@ -52,6 +53,7 @@ from lrnbv_drake.station.parts import (
     zone_geometry,
 )
 from lrnbv_drake.station.scenario import Scenario
+from lrnbv_drake.station.scenario_checks import check_placement
 from lrnbv_drake.systems.acquisition_loop import AcquisitionLoop
 from lrnbv_drake.systems.object_clustering import ObjectClustering
 from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
@@ -218,7 +220,7 @@ def write_outputs(out_dir: Path, run: EpisodeRun, report: dict[str, Any],
     """frames.npz, report.json, report.html and (with Meshcat) replay.html, each written
     atomically, the data first."""
     save_frames(out_dir / "frames.npz", run.log.acquisitions)
-    write_atomically(out_dir / "report.json", json.dumps(report, indent=2,
+    write_atomically(out_dir / "report.json", json.dumps(rounded(report), indent=2,
                                                          default=json_default))
     if meshcat is not None:
         meshcat.StopRecording()
@@ -245,6 +247,7 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
     `realtime_rate` 1.0 plays the episode at the speed of the real arm (to watch it live);
     0 runs as fast as it computes.
     """
+    check_placement(scenario)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()

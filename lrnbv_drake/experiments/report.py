@@ -23,6 +23,22 @@ from lrnbv_drake.station.scenario import Scenario
 COVERAGE_SPACING = 0.005
 
 
+#: Decimals of every float in report.json: a nanometre or a nanosecond, so that 0.3 reads
+#: 0.3 and not 0.30000000000000004.
+REPORT_DECIMALS = 9
+
+
+def rounded(value: Any) -> Any:
+    """`value` with every float rounded to REPORT_DECIMALS (and -0.0 written 0.0)."""
+    if isinstance(value, dict):
+        return {k: rounded(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [rounded(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return round(float(value), REPORT_DECIMALS) + 0.0
+    return value.item() if isinstance(value, np.generic) else value
+
+
 def json_default(value: Any) -> Any:
     """For json.dumps: numpy arrays and scalars as plain lists and numbers."""
     if isinstance(value, np.ndarray):
@@ -163,7 +179,8 @@ def _box_entry(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None
     if box is None:
         return None
     entry = {"estimator": scenario.extraction.estimator, "center": box.center.tolist(),
-             "dims": box.dims.tolist(), "yaw": float(box.yaw)}
+             "dims": box.dims.tolist(), "yaw": float(box.yaw),
+             "yaw_deg": float(np.degrees(box.yaw))}
     if fit is not None:
         entry.update(dims_lower=fit.dims_lower.tolist(), dims_upper=fit.dims_upper.tolist(),
                      zones=fit.n_zones)

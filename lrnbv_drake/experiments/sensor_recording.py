@@ -3,8 +3,10 @@ simulator's noise model to recordings of a flat target into a scenario file.
 
 `record` appends each frame to a journal of `$TOF` lines (`FILE.tof`, fsync'ed) before it
 awaits the next one, and the journal becomes the .npz at the end, so a crash or a pulled cable
-loses nothing already captured: `load_recording` reads a journal as it is. What to print is
-the caller's: these functions report through callbacks and return how the run ended.
+loses nothing already captured: `load_recording` reads a journal as it is. A device path that
+does not exist fails at once (`check_port_exists`); one that goes away during a run is waited
+for, as the driver reopens it. What to print is the caller's: these functions report through
+callbacks and return how the run ended.
 """
 
 from __future__ import annotations
@@ -28,7 +30,12 @@ from lrnbv_drake.core.sensor_calibration import (
     zone_noise,
 )
 from lrnbv_drake.core.tof_protocol import encode_frame
-from lrnbv_drake.drivers.tof_serial import SensorTimeout, SerialStats, ToFSerialReader
+from lrnbv_drake.drivers.tof_serial import (
+    SensorTimeout,
+    SerialStats,
+    ToFSerialReader,
+    check_port_exists,
+)
 from lrnbv_drake.experiments.recording import (
     load_recording,
     write_atomically,
@@ -66,6 +73,7 @@ def record(port: str, baud: int, n_frames: int, out: Path, timeout: float,
         raise ValueError(f"--out {out}: expected a .npz file")
     if n_frames < 1:
         raise ValueError(f"--frames must be >= 1; got {n_frames}")
+    check_port_exists(port)
     journal = out.with_suffix(".tof")
     if journal.exists():
         raise ValueError(f"{journal} exists, left by an interrupted recording: pass it to "
@@ -98,7 +106,9 @@ def stream(port: str, baud: int, n_frames: int, timeout: float,
            show: Callable[[ToFFrame, SerialStats, float | None], object],
            waiting: Callable[[SensorTimeout], object]) -> SerialRun:
     """Hands each new frame to `show(frame, stats, rate_hz)` until Ctrl-C or `n_frames`
-    (0: no limit); `waiting(error)` hears of each `timeout` without one."""
+    (0: no limit); `waiting(error)` hears of each `timeout` without one (a port that exists
+    but sends nothing); a device path that does not exist fails at once."""
+    check_port_exists(port)
     arrivals: collections.deque[float] = collections.deque(maxlen=_RATE_WINDOW)
     shown, last, interrupted = 0, 0, False
     with ToFSerialReader(port, baud) as sensor:

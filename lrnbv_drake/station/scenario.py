@@ -21,10 +21,9 @@ from lrnbv_drake.core.kinematics import HOME
 from lrnbv_drake.core.planning.config import PlannerParams
 from lrnbv_drake.station.hardware_config import HardwareConfig
 from lrnbv_drake.station.resources import package_url
+from lrnbv_drake.station.scenario_checks import ScenarioError, check_ranges, parse_yaml
 
-
-class ScenarioError(ValueError):
-    """A scenario file or string that does not match the schema."""
+__all__ = ["Scenario", "ScenarioError", "load_scenario", "override"]
 
 
 @dc.dataclass
@@ -315,10 +314,7 @@ def load_scenario(filename: str | Path | None = None, data: str | None = None,
             raw_text = Path(text).read_text() if source == "file" else text
         except OSError as e:
             raise ScenarioError(f"{label}: cannot read it ({e.strerror})") from e
-        try:
-            parsed = yaml.safe_load(raw_text)
-        except yaml.YAMLError as e:
-            raise ScenarioError(f"{label}: not valid YAML: {e}") from e
+        parsed = parse_yaml(raw_text, label)
         if parsed is None:
             continue
         try:
@@ -326,4 +322,5 @@ def load_scenario(filename: str | Path | None = None, data: str | None = None,
         except ScenarioError as e:
             raise ScenarioError(f"{label}: {e}") from e
         scenario = yaml_load_typed(schema=Scenario, data=raw_text, defaults=scenario)
+    check_ranges(scenario)
     return scenario

@@ -2,13 +2,20 @@
 or as Ray tasks. Each backend yields one record per episode as it ends, in any order; an
 episode that raises, or whose worker dies, becomes a "failed" record instead of stopping the
 campaign.
+
+Ctrl-C reaches this process only (the workers ignore it), and stops the episodes still running
+at once, however often it is pressed: their workers are terminated, and the next run of the
+command runs those episodes again.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import multiprocessing
+import signal
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
@@ -25,7 +32,10 @@ EpisodeFn = Callable[[Scenario, str, Path, bool], dict[str, Any]]
 
 
 def simulate(scenario: Scenario, planner: str, out_dir: Path, replay: bool) -> dict[str, Any]:
-    """The real episode: `run_episode`, with a Meshcat for the replay only when asked."""
+    """The real episode: `run_episode`, with a Meshcat for the replay only when asked. Drake's
+    INFO lines ("Allocating contexts ...") would break the progress bar: only its warnings
+    pass, in whichever process the episode runs."""
+    logging.getLogger("drake").setLevel(logging.WARNING)
     meshcat = make_meshcat(live=False) if replay else None
     return run_episode(scenario, planner, out_dir, meshcat).report
 
@@ -52,6 +62,21 @@ def failed_record(episode: Episode, error: str, trace: str, seconds: float) -> d
         "status": "failed", "error": error, "traceback": trace, "episode_seconds": seconds}}
 
 
+@contextlib.contextmanager
+def sigint_ignored() -> Iterator[None]:
+    """Ctrl-C is ignored inside, and by the processes started inside (an ignored signal stays
+    ignored across exec, and Python then installs no handler for it). Signals are the main
+    thread's: elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _run_serial(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
                 config: CampaignConfig) -> Iterator[dict[str, Any]]:
     for episode in todo:
@@ -64,16 +89,23 @@ def _run_processes(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn
     pool = ProcessPoolExecutor(max_workers=config.jobs,
                                mp_context=multiprocessing.get_context("spawn"))
     try:
-        futures = {pool.submit(execute, ep, out_dir, episode_fn): ep for ep in todo}
+        # The workers start on submit: they ignore Ctrl-C, so that only this process hears it.
+        with sigint_ignored():
+            futures = {pool.submit(execute, ep, out_dir, episode_fn): ep for ep in todo}
         for future in as_completed(futures):
             try:
                 yield future.result()
             except Exception as e:  # the worker died (e.g. a crash in native code)
                 yield failed_record(futures[future], f"{type(e).__name__}: {e}",
                                     traceback.format_exc(), math.nan)
-    finally:
-        # On Ctrl-C or an error here, drop the episodes not yet started.
-        pool.shutdown(cancel_futures=True)
+    except BaseException:  # Ctrl-C, or the consumer stopped: end the running episodes now
+        with sigint_ignored():
+            # No public way before Python 3.14's terminate_workers().
+            for process in list((pool._processes or {}).values()):
+                process.terminate()
+            pool.shutdown(cancel_futures=True)
+        raise
+    pool.shutdown()
 
 
 def _run_ray(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
@@ -89,6 +121,7 @@ def _run_ray(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
             ray.init(address=config.ray_address, logging_level=logging.WARNING)
         else:
             ray.init(num_cpus=config.jobs, logging_level=logging.WARNING)
+    pending: dict[Any, Episode] = {}
     try:
         # No Ray retries: a failure is recorded, and the next run of the command retries it.
         task = ray.remote(num_cpus=1, max_retries=0)(execute)
@@ -101,6 +134,11 @@ def _run_ray(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
             except Exception as e:  # the worker or the node died
                 yield failed_record(episode, f"{type(e).__name__}: {e}", traceback.format_exc(),
                                     math.nan)
+    except BaseException:  # Ctrl-C, or the consumer stopped: end the running episodes now
+        with sigint_ignored():
+            for ref in pending:
+                ray.cancel(ref, force=True)
+        raise
     finally:
         if started_here:
             ray.shutdown()

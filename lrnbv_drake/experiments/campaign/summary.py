@@ -123,13 +123,19 @@ def write_results_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
         writer.writerows(rows)
 
 
-def _fmt(value: float) -> str:
-    return "n/a" if not math.isfinite(value) else f"{value:.3g}"
+def _fmt(value: float, snap: bool = True) -> str:
+    """Three significant digits; with `snap`, 0 for a value that is 0 but for float rounding
+    (an error of 1.11e-16 m is no error; a p-value of 1e-12 is not 0)."""
+    if not math.isfinite(value):
+        return "n/a"
+    return f"{round(value, 9) + 0.0 if snap else value:.3g}"
 
 
 def _cell(summary: Summary) -> str:
     if summary.n == 0:
         return "n/a"
+    if summary.n == 1:  # no quartiles to speak of
+        return f"{_fmt(summary.median)} (n=1)"
     return f"{_fmt(summary.median)} [{_fmt(summary.q1)}, {_fmt(summary.q3)}] (n={summary.n})"
 
 
@@ -175,9 +181,9 @@ def summary_markdown(config: CampaignConfig, rows: Sequence[dict[str, Any]],
     no_metrics = sorted({r["campaign"]["planner"] for r in records
                          if r["campaign"]["status"] == "ok" and not r.get("metrics")})
     lines += ["## Medians and quartiles", "",
-              "Each cell: median [Q1, Q3] (n = finished episodes with a value); the IQR is "
-              "Q3 - Q1. n/a: no value, because every episode failed or the reports carry no "
-              "`metrics`."]
+              "Each cell: median [Q1, Q3] (n = finished episodes with a value), or the value "
+              "when n = 1; the IQR is Q3 - Q1. n/a: no value, because every episode failed or "
+              "the reports carry no `metrics`."]
     if no_metrics:
         lines += ["", f"The reports of {', '.join(planner_label(p) for p in no_metrics)} "
                   "carry no `metrics` (box, IoU, coverage, useless poses): those are n/a and "
@@ -201,6 +207,10 @@ def _comparison_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) ->
         ran = ", ".join(planner_label(p) for p in config.planners)
         return [*lines, f"n/a: the tests compare {planner_label(ref)} against the other "
                 f"planners, and this campaign ran {ran}.", ""]
+    if config.trials < 2:
+        return [*lines, "n/a: with one trial per planner and object (n = 1) there is no "
+                "spread to test a difference against; run two or more trials (the paper "
+                "ran five: --trials 5).", ""]
     lines += [
         f"Two-sided `scipy.stats.mannwhitneyu` of {planner_label(ref)} against each other "
         "planner, per object and metric, over the finished episodes. U is "
@@ -221,7 +231,7 @@ def _comparison_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) ->
             line = [metric.label]
             for other in others:
                 t = tests[obj, metric.column, other]
-                line += [_fmt(t.u), _fmt(t.p) + (" *" if t.significant else ""),
+                line += [_fmt(t.u), _fmt(t.p, snap=False) + (" *" if t.significant else ""),
                          "; ".join(filter(None, (t.method, t.note)))]
             body.append(line)
         lines += [f"### {obj}", "", *_table(header, body)]

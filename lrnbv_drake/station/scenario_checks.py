@@ -1,0 +1,285 @@
+"""Checks a scenario's values, and where its object sits in the cell, before anything is built.
+
+`station.scenario` checks the types (an int where an int belongs); these check what the types
+cannot: ranges (`samples_per_iteration: -5` would plan nothing, `max_poses: 0` would still take
+a pose), YAML that a plain load accepts but means two things (a duplicate key), and placements
+the episode could never resolve (a 150 m mesh read in millimetres, an object outside the
+mapped volume or inside the robot's base), so that each fails at once with the field named and
+what was expected, instead of minutes later, out of memory or with "no object found".
+The `hardware` section is `station.hardware_cell.check_hardware_config`'s; the simulation-only
+`device` section is not read here (only the simulated sensor may read it, test_device_section).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import trimesh
+import yaml
+
+from lrnbv_drake.core import objects
+from lrnbv_drake.core.tof_protocol import RESOLUTIONS
+
+if TYPE_CHECKING:  # scenario.py calls these checks while loading; only the type is needed
+    from lrnbv_drake.station.scenario import Scenario
+
+
+class ScenarioError(ValueError):
+    """A scenario file or string that does not match the schema (or its ranges)."""
+
+#: Radius around the robot's base axis (the world origin, cell/cell.dmd.yaml) that no object
+#: may reach into, metres: the UR5e's base is 0.15 m across, its shoulder turns above it.
+BASE_CLEARANCE = 0.10
+#: A mesh larger than this, metres, is no object on a table: its units are not metres, and
+#: `check_placement` suggests the first of `UNIT_SCALES` (factor, unit) it would fit at.
+NOT_METRES = 10.0
+UNIT_SCALES = ((0.001, "millimetres"), (0.01, "centimetres"))
+
+# --- Value ranges ----------------------------------------------------------------------------
+
+#: (field path, test of the value, what was expected).
+Rule = tuple[str, Callable[[Any], bool], str]
+
+
+def _number(ok: Callable[[float], bool], expected: str) -> tuple[Callable[[Any], bool], str]:
+    return (lambda v: math.isfinite(v) and ok(v)), expected
+
+
+def _at_least(lo: float) -> tuple[Callable[[Any], bool], str]:
+    return _number(lambda v: v >= lo, f"a number >= {lo:g}")
+
+
+def _above(lo: float) -> tuple[Callable[[Any], bool], str]:
+    return _number(lambda v: v > lo, f"a number > {lo:g}")
+
+
+def _vector(n: int) -> tuple[Callable[[Any], bool], str]:
+    return ((lambda v: len(v) == n and all(math.isfinite(x) for x in v)),
+            f"{n} finite numbers")
+
+
+def _one_of(*choices: str) -> tuple[Callable[[Any], bool], str]:
+    return (lambda v: v in choices), "one of " + ", ".join(repr(c) for c in choices)
+
+
+_FRACTION = _number(lambda v: 0 < v <= 1, "a fraction in (0, 1]")
+_FINITE = _number(lambda v: True, "a finite number")
+
+RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
+    ("seed", _at_least(0)),
+    ("max_poses", _at_least(1)),
+    ("robot.initial_position", _vector(6)),
+    ("robot.speed_fraction", _FRACTION),
+    ("robot.acceleration_fraction", _FRACTION),
+    ("robot.collision_check_step", _above(0)),
+    ("robot.collision_padding", _at_least(0)),
+    ("cell.table_height", _FINITE),
+    ("cell.workspace_lower", _vector(3)),
+    ("cell.workspace_upper", _vector(3)),
+    ("object.scale", _above(0)),
+    ("object.x", _FINITE),
+    ("object.y", _FINITE),
+    ("object.yaw_deg", _FINITE),
+    ("sensor.resolution", ((lambda v: v in RESOLUTIONS.values()),
+                           f"one of {sorted(RESOLUTIONS.values())} (the VL53L8CX's modes)")),
+    ("sensor.fov_deg", _number(lambda v: 0 < v < 180, "an angle in (0, 180) degrees")),
+    ("sensor.subsamples", _at_least(1)),
+    ("sensor.min_share", _FRACTION),
+    ("sensor.cluster_gap_mm", _above(0)),
+    ("sensor.sigma0_mm", _at_least(0)),
+    ("sensor.noise_k", _at_least(0)),
+    ("sensor.period", _above(0)),
+    ("sensor.settle_frames", _at_least(0)),
+    ("sensor.baud", _at_least(1)),
+    ("mapping.resolution", _above(0)),
+    ("mapping.lower", _vector(3)),
+    ("mapping.upper", _vector(3)),
+    ("mapping.insertion", _one_of("ray", "cone")),
+    ("mapping.cone_subrays", _at_least(1)),
+    ("mapping.max_range", _FINITE),
+    ("extraction.table_tolerance", _at_least(0)),
+    ("extraction.dbscan_eps", _above(0)),
+    ("extraction.dbscan_min_samples", _at_least(1)),
+    ("extraction.min_cluster_points", _at_least(1)),
+    ("extraction.center", _vector(2)),
+    ("extraction.max_center_distance", _above(0)),
+    ("extraction.roi_margin", _at_least(0)),
+    ("extraction.estimator", _one_of("model", "cells")),
+    ("planner.num_iterations", _at_least(1)),
+    ("planner.samples_per_iteration", _at_least(1)),
+    ("planner.num_cached_nodes", _at_least(0)),
+    ("planner.visited_cell_size", _above(0)),
+    ("planner.weights.exploration", _at_least(0)),
+    ("planner.weights.density", _at_least(0)),
+    ("planner.weights.quality", _at_least(0)),
+    ("planner.weights.visited", _at_least(0)),
+    ("planner.gains.max_range", _above(0)),
+    ("planner.gains.rays_per_zone", _at_least(1)),
+    ("planner.gains.density_radius", _above(0)),
+    ("planner.tree.max_edge", _above(0)),
+    ("planner.tree.roi_clearance", _at_least(0)),
+    ("planner.tree.aim_offset_fraction", _at_least(0)),
+    ("planner.tree.max_attempts_per_node", _at_least(1)),
+    ("planner.tree.round_size", _at_least(1)),
+    ("planner.cache_threshold", _FINITE),
+    ("planner.cached_sample_spread", _at_least(0)),
+    ("planner.search_lower", _vector(3)),
+    ("planner.search_upper", _vector(3)),
+    ("visualization.publish_period", _above(0)),
+))
+
+#: Boxes given as two corners: every lower coordinate must be below the upper one.
+BOXES: tuple[tuple[str, str], ...] = (
+    ("cell.workspace_lower", "cell.workspace_upper"),
+    ("mapping.lower", "mapping.upper"),
+    ("planner.search_lower", "planner.search_upper"),
+)
+
+
+def _field(scenario: Scenario, path: str) -> Any:
+    value: Any = scenario
+    for name in path.split("."):
+        value = getattr(value, name)
+    return value
+
+
+def check_ranges(scenario: Scenario) -> None:
+    """Raises ScenarioError naming the first field whose value is out of its range (`RULES`,
+    `BOXES`); the types are already checked when the scenario is loaded."""
+    for path, ok, expected in RULES:
+        value = _field(scenario, path)
+        if not ok(value):
+            raise ScenarioError(f"field '{path}': expected {expected}, got {value!r}")
+    for lower_path, upper_path in BOXES:
+        lower, upper = _field(scenario, lower_path), _field(scenario, upper_path)
+        if not all(lo < hi for lo, hi in zip(lower, upper, strict=True)):
+            raise ScenarioError(f"fields '{lower_path}' {lower} and '{upper_path}' {upper}: "
+                                "expected every lower coordinate below the upper one")
+
+
+# --- YAML ------------------------------------------------------------------------------------
+
+
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a key given twice in one mapping (a plain load keeps
+    the last value given, silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: dict[Any, yaml.Mark] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == _MERGE_TAG:  # `<<: *base` may repeat the base's keys
+                continue
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                first = seen.setdefault(key, key_node.start_mark)
+            except TypeError:  # an unhashable key: the base class says so
+                break
+            if first is not key_node.start_mark:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"the key '{key}' is given twice (first on line "
+                    f"{first.line + 1}); expected each key once", key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
+
+
+def parse_yaml(text: str, label: str) -> Any:
+    """`text` parsed as YAML, or ScenarioError naming `label` (e.g. "scenario file 'x.yaml'"),
+    the line and column, and the problem; a duplicate key is an error."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader: no arbitrary objects
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark
+        where = f", line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        context = f" {e.context}," if e.context else ""
+        raise ScenarioError(f"{label}{where}: not valid YAML:{context} {e.problem}") from e
+    except yaml.YAMLError as e:
+        raise ScenarioError(f"{label}: not valid YAML: {e}") from e
+
+
+# --- The object in the cell ------------------------------------------------------------------
+
+
+def _dims(values: Sequence[float]) -> str:
+    return " x ".join(f"{v:.3g}" for v in values) + " m"
+
+
+def _unit_hint(extents: np.ndarray, fits: Callable[[np.ndarray], bool]) -> str:
+    """What to do about a mesh too large for the cell: the scale to try when it is so large
+    that its units cannot be metres."""
+    if max(extents) > NOT_METRES:
+        for factor, unit in UNIT_SCALES:
+            if fits(extents * factor):
+                return (f"; if the mesh is in {unit}, set object.scale to {factor:g} "
+                        f"(--object-scale {factor:g})")
+    return "; scale it down (object.scale, --object-scale) or enlarge the mapped volume"
+
+
+def _footprint_distance(placed: objects.PlacedObject, point_xy: np.ndarray) -> float:
+    """Horizontal distance from `point_xy` to the object's footprint (its true box seen from
+    above), 0 inside it."""
+    R, t = placed.X_WO[:2, :2], placed.X_WO[:2, 3]
+    local = R.T @ (np.asarray(point_xy, float) - t)
+    lo, hi = placed.box_min_O[:2], placed.box_max_O[:2]
+    return float(np.linalg.norm(np.maximum(np.maximum(lo - local, local - hi), 0.0)))
+
+
+def check_placement(scenario: Scenario, mesh: trimesh.Trimesh | None = None) -> None:
+    """Raises ScenarioError when the scenario's object, placed as it says, could never be found:
+    larger than the mapped volume (with the scale to try when it looks like millimetres),
+    lower than the table tolerance, reaching into the robot's base, farther from
+    `extraction.center` than `extraction.max_center_distance`, or out of the mapped volume.
+
+    `mesh` is the object's mesh already loaded at its scale (else it is loaded here); cheap
+    next to an episode, so callers run it before building anything.
+    """
+    o, m, e = scenario.object, scenario.mapping, scenario.extraction
+    table = scenario.cell.table_height
+    if mesh is None:
+        try:
+            mesh = objects.load_object_mesh(o.name, o.scale)
+        except (ValueError, FileNotFoundError) as err:
+            raise ScenarioError(f"field 'object.name': {err}") from err
+    lower, upper = np.asarray(m.lower, float), np.asarray(m.upper, float)
+    room = np.array([*sorted(upper[:2] - lower[:2]), upper[2] - table])
+    extents = np.asarray(mesh.extents, float)
+
+    def fits(size: np.ndarray) -> bool:
+        return bool(np.all(np.array([*sorted(size[:2]), size[2]]) <= room))
+
+    def plausible(size: np.ndarray) -> bool:
+        return fits(size) and size[2] > e.table_tolerance
+
+    label = f"object '{o.name}' at scale {o.scale:g}"
+    if not fits(extents):
+        raise ScenarioError(
+            f"{label} is {_dims(extents)} ({max(extents):.3g} m across): larger than the "
+            f"mapped volume, {_dims(upper - lower)} (mapping.lower, mapping.upper)"
+            + _unit_hint(extents, plausible))
+    if extents[2] <= e.table_tolerance:
+        raise ScenarioError(
+            f"{label} is {extents[2]:.3g} m tall: not above extraction.table_tolerance "
+            f"({e.table_tolerance:g} m), so every point on it is taken for the table")
+    placed = objects.place_on_table(
+        mesh, objects.ObjectPlacement(o.x, o.y, math.radians(o.yaw_deg)), table)
+    where = f"{label} placed at x = {o.x:g}, y = {o.y:g} m (object.x, object.y)"
+    if _footprint_distance(placed, np.zeros(2)) < BASE_CLEARANCE:
+        raise ScenarioError(
+            f"{where} reaches within {BASE_CLEARANCE:g} m of the robot's base axis at (0, 0): "
+            f"it would stand inside the robot; place it in front, e.g. x = 0.5, y = 0")
+    distance = math.dist((o.x, o.y), e.center)
+    if distance > e.max_center_distance:
+        raise ScenarioError(
+            f"{where} is {distance:.3g} m from extraction.center {list(e.center)}: the object "
+            f"is looked for within extraction.max_center_distance = "
+            f"{e.max_center_distance:g} m of it; place it there or move extraction.center")
+    box_lo, box_hi = placed.mesh.bounds
+    if np.any(box_lo < lower) or np.any(box_hi > upper):
+        raise ScenarioError(
+            f"{where} spans {np.round(box_lo, 3).tolist()} to {np.round(box_hi, 3).tolist()} "
+            f"m: out of the mapped volume {list(m.lower)} to {list(m.upper)} "
+            f"(mapping.lower, mapping.upper)")

@@ -1,0 +1,253 @@
+"""`lrnbv` as a new user meets it (issue 14): bad input gets a named error and exit code 2 before
+anything is written, results are never overwritten silently, Ctrl-C saves what was captured and
+exits 130 without a traceback, and the help says what each command does."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from lrnbv_drake.cli import run as run_cli
+from lrnbv_drake.cli.main import main
+from lrnbv_drake.cli.out_dir import MARKERS
+
+WAIT = 90.0  # upper bound of every wait on a subprocess; a passing run never comes near it
+
+
+def _lrnbv(*argv: str, **kwargs) -> subprocess.Popen[str]:
+    """`lrnbv ARGV` in its own process group (as a shell runs a foreground command)."""
+    return subprocess.Popen([sys.executable, "-m", "lrnbv_drake.cli.main", *argv],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, **kwargs)
+
+
+def _read_lines(proc: subprocess.Popen[str], n: int) -> list[str]:
+    """The first `n` lines of the process's stdout, waiting at most WAIT."""
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(
+        proc.stdout.readline().strip() for _ in range(n)), daemon=True)
+    reader.start()
+    reader.join(WAIT)
+    return lines
+
+
+def _wait_for(condition, what: str) -> None:
+    deadline = time.monotonic() + WAIT
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"not within {WAIT} s: {what}")
+        time.sleep(0.05)
+
+
+# --- Bad input: a named error, exit code 2, nothing written ----------------------------------
+
+
+def test_a_mesh_in_millimetres_is_refused_with_the_scale_to_use(tmp_path, capsys):
+    part = tmp_path / "part_mm.stl"
+    trimesh.creation.cylinder(radius=75.0, height=150.0).export(part)  # 150 mm, read as m
+    out = tmp_path / "out"
+    assert main(["run", "--object", str(part), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "150 m across" in err and "--object-scale 0.001" in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--object-pose", "3,0,0"], "2.5 m from extraction.center"),
+    (["--object-pose", "0,0,0"], "robot's base"),
+    (["--scenario-text", "{object: {scale: 5}}"], "1.5 x 1 x 0.6 m"),  # a 1.5 m box
+    (["--object", "teapot"], "unknown object 'teapot'"),
+])
+def test_impossible_placements_are_refused_before_anything_runs(argv, words, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["run", *argv, "--out", str(out)]) == 2
+    assert words in capsys.readouterr().err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["run", "benchmark"])
+def test_a_negative_seed_is_an_argument_error(command, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([command, "--seed", "-1", "--out", str(tmp_path)])
+    assert exit_info.value.code == 2
+    assert "argument --seed: expected an integer >= 0, got '-1'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", [["run"], ["benchmark", "--objects", "flange"]])
+def test_out_naming_a_file_or_nothing_is_refused(command, tmp_path, capsys):
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("keep me")
+    for out, words in ((a_file, "that is a file"), (a_file / "sub", "Not a directory"),
+                       ("", "expected a folder name")):
+        assert main([*command, "--out", str(out)]) == 2
+        assert words in capsys.readouterr().err
+    assert a_file.read_text() == "keep me"
+
+
+def test_out_that_cannot_be_created_is_an_error_not_a_traceback(tmp_path, capsys, monkeypatch):
+    def refuse(self, *args, **kwargs):  # as in a read-only folder (tests may run as root)
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(Path, "mkdir", refuse)
+    assert main(["run", "--out", str(tmp_path / "ro" / "out")]) == 2
+    assert "cannot create the folder (Permission denied)" in capsys.readouterr().err
+
+
+# --- Results are never overwritten silently --------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", ["hardware", "benchmark", "run"])
+def test_run_refuses_a_folder_holding_results(kind, tmp_path, capsys):
+    (tmp_path / MARKERS[kind][0]).write_text("{}")
+    assert main(["run", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"results of an earlier `lrnbv {kind}`" in err
+    assert ("--overwrite" in err) == (kind == "run")
+    assert (tmp_path / MARKERS[kind][0]).read_text() == "{}"
+    # --overwrite replaces an earlier episode only.
+    if kind != "run":
+        assert main(["run", "--overwrite", "--out", str(tmp_path)]) == 2
+        assert (tmp_path / MARKERS[kind][0]).read_text() == "{}"
+
+
+def test_benchmark_refuses_a_run_or_session_folder(tmp_path, capsys):
+    (tmp_path / "report.json").write_text("{}")
+    assert main(["benchmark", "--objects", "flange", "--out", str(tmp_path)]) == 2
+    assert "results of an earlier `lrnbv run`" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json"]
+
+
+def test_a_failed_hardware_start_leaves_no_empty_folder(tmp_path, capsys):
+    out = tmp_path / "cell"
+    assert main(["hardware", "--robot-ip", "127.0.1.254", "--sensor-port",
+                 str(tmp_path / "ttyACM9"), "--out", str(out), "--yes"]) == 2
+    assert f"no serial port {tmp_path / 'ttyACM9'}" in capsys.readouterr().err
+    # Nothing listens on this loopback address: the connection is refused at once.
+    assert main(["hardware", "--robot-ip", "127.0.1.254", "--sensor-port", "/dev/null",
+                 "--out", str(out), "--yes"]) == 2
+    assert "nothing moved" in capsys.readouterr().err
+    assert not out.exists()
+
+
+# --- A run that finds no object exits non-zero ------------------------------------------------
+
+
+def test_a_run_that_finds_no_object_exits_1(tmp_path, capsys):
+    out = tmp_path / "out"
+    # Clusters must have more points than two frames can give: nothing is ever an object.
+    code = main(["run", "--planner", "heu", "--scenario-text",
+                 "{max_poses: 2, extraction: {min_cluster_points: 100000}}",
+                 "--out", str(out)])
+    assert code == run_cli.EXIT_NOT_FOUND == 1
+    assert "no object found" in capsys.readouterr().err
+    report = json.loads((out / "report.json").read_text())
+    assert report["n_poses"] == 2 and report["estimated_box"] is None
+    # ... and what it did is there: rerunning into the folder needs --overwrite.
+    assert main(["run", "--planner", "heu", "--out", str(out)]) == 2
+
+
+# --- Ctrl-C -----------------------------------------------------------------------------------
+
+#: Runs `lrnbv run` with the acquisition loop printing each capture and holding after the
+#: second, so that the test interrupts an episode that has captured exactly two frames.
+HOLD_AFTER_TWO = """
+import sys, time
+from lrnbv_drake.cli.main import main
+from lrnbv_drake.core.acquisition import AcquisitionSequencer
+
+record = AcquisitionSequencer._record
+
+def record_and_hold(self, s, *args):
+    record(self, s, *args)
+    print(f"captured {len(s.log.acquisitions)}", flush=True)
+    if len(s.log.acquisitions) == 2:
+        time.sleep(600)
+
+AcquisitionSequencer._record = record_and_hold
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_ctrl_c_during_run_saves_what_was_captured_and_exits_130(tmp_path):
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD_AFTER_TWO, "run", "--planner", "heu", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert _read_lines(proc, 2) == ["captured 1", "captured 2"]
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=WAIT)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    assert f"what was captured is in {out}" in stderr
+    assert np.load(out / "frames.npz")["X_WS"].shape == (2, 4, 4)
+    report = json.loads((out / "report.json").read_text())
+    assert report["n_poses"] == 2 and report["fault"] == "interrupted"
+
+
+def test_ctrl_c_twice_stops_a_benchmark_at_once_and_tells_how_to_resume(tmp_path):
+    out = tmp_path / "campaign"
+    proc = _lrnbv("benchmark", "--planners", "heu", "--objects", "horizontal_box", "--trials",
+                  "3", "--jobs", "2", "--out", str(out))
+    try:
+        # An episode has started in a worker (run_episode makes its folder first).
+        _wait_for(lambda: any((out / "runs").glob("*")) or proc.poll() is not None,
+                  "an episode starts")
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C reaches the whole foreground group
+        time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, stderr = proc.communicate(timeout=WAIT)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    assert "Resume with the same command" in stderr and str(out) in stderr
+    summary = (out / "summary.md").read_text()
+    finished = len(list((out / "episodes").glob("*.json")))
+    assert f"- episodes: {finished}, finished {finished}, failed 0" in summary
+
+    def group_gone() -> bool:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            return True
+        return False
+
+    _wait_for(group_gone, "the workers end")
+
+
+# --- Help -------------------------------------------------------------------------------------
+
+
+def test_help_describes_the_commands_and_version(capsys):
+    with pytest.raises(SystemExit):
+        main(["--version"])
+    assert capsys.readouterr().out.startswith("lrnbv 0.")
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for words in ("Runs one reconstruction episode", "(default: lrnbv)",
+                  "(default: horizontal_box)", "(default: 0.5,0,0)", "every network interface",
+                  "exit status: 0 a box was found, 1 the episode found no object"):
+        assert words in text
+
+
+def test_sensor_record_refuses_to_replace_a_recording(tmp_path, capsys):
+    recording = tmp_path / "flat_0p5m.npz"
+    recording.write_bytes(b"an earlier recording")
+    assert main(["sensor", "record", "--port", str(tmp_path / "ttyACM9"), "--frames", "1",
+                 "--out", str(recording)]) == 2
+    assert "pass --overwrite to replace it" in capsys.readouterr().err
+    assert recording.read_bytes() == b"an earlier recording"
