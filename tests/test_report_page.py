@@ -10,7 +10,7 @@ import subprocess
 import pytest
 from PIL import Image
 
-from lrnbv_drake.experiments.episode import run_episode
+from lrnbv_drake.experiments.episode import make_meshcat, run_episode
 from lrnbv_drake.experiments.report_page import SECTIONS
 from lrnbv_drake.station.scenario import Scenario
 
@@ -52,3 +52,13 @@ def test_a_headless_browser_renders_it_offline(page, tmp_path):
                     "--window-size=1200,2400", page.as_uri()],
                    check=True, timeout=60, capture_output=True)
     assert Image.open(shot).size == (1200, 2400)
+
+
+def test_the_replay_shows_both_boxes_and_the_poses(tmp_path):
+    meshcat = make_meshcat(live=False)
+    report = run_episode(Scenario(seed=2), "heu", tmp_path, meshcat).report
+    assert meshcat.HasPath("/results/estimated box (red)")
+    assert meshcat.HasPath("/results/true box (green)")
+    for pose in report["poses"]:
+        assert meshcat.HasPath(f"/results/sensor poses (blue)/{pose['index']:03d}")
+    assert not meshcat.HasPath(f"/results/sensor poses (blue)/{report['n_poses']:03d}")

@@ -25,7 +25,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydrake.geometry import Meshcat, MeshcatParams
+from pydrake.geometry import Box, Meshcat, MeshcatParams, Rgba, Sphere
+from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, EventStatus
 
@@ -224,10 +225,33 @@ def write_outputs(out_dir: Path, run: EpisodeRun, report: dict[str, Any],
                                                          default=json_default))
     if meshcat is not None:
         meshcat.StopRecording()
+        _draw_results(meshcat, report)
         meshcat.PublishRecording()
         write_atomically(out_dir / "replay.html", meshcat.StaticHtml())
     write_atomically(out_dir / "report.html", report_page(
         report, run.log.acquisitions, zone_geometry(scenario), replay=meshcat is not None))
+
+
+def _draw_results(meshcat: Meshcat, report: dict[str, Any]) -> None:
+    """The result over the replay: the estimated box (red) and, in simulation, the true box
+    (green), translucent, and a blue dot at every sensor pose; their names in Meshcat's scene
+    tree are the legend. The camera starts close to the object."""
+    boxes = (("estimated box (red)", report["estimated_box"], Rgba(0.9, 0.1, 0.1, 0.35)),
+             ("true box (green)", report.get("metrics", {}).get("true_box"),
+              Rgba(0.1, 0.8, 0.2, 0.35)))
+    for name, entry, colour in boxes:
+        if entry is None:
+            continue
+        path = f"/results/{name}"
+        meshcat.SetObject(path, Box(*entry["dims"]), colour)
+        meshcat.SetTransform(path, RigidTransform(RotationMatrix.MakeZRotation(entry["yaw"]),
+                                                  entry["center"]))
+    for pose in report["poses"]:
+        path = f"/results/sensor poses (blue)/{pose['index']:03d}"
+        meshcat.SetObject(path, Sphere(0.01), Rgba(0.1, 0.3, 0.9, 1.0))
+        meshcat.SetTransform(path, RigidTransform(np.asarray(pose["X_WS"])[:3, 3]))
+    centre = (report["estimated_box"] or {}).get("center", [0.5, 0.0, 0.1])
+    meshcat.SetCameraPose(np.add(centre, [0.6, -0.6, 0.5]), centre)
 
 
 @dc.dataclass
@@ -254,7 +278,7 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
     parts = build_episode(scenario, planner, meshcat)
     if meshcat is not None:
         # Look at the object area from the front-left, a little above the table.
-        meshcat.SetCameraPose([1.5, -1.1, 1.0], [0.4, 0.0, 0.15])
+        meshcat.SetCameraPose([1.2, -0.8, 0.8], [0.5, 0.0, 0.1])
     run = run_loop(parts, realtime_rate=realtime_rate,
                    interrupt_hint=f"what was captured is in {out_dir}")
     wall = time.perf_counter() - started
