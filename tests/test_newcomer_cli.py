@@ -251,3 +251,13 @@ def test_sensor_record_refuses_to_replace_a_recording(tmp_path, capsys):
                  "--out", str(recording)]) == 2
     assert "pass --overwrite to replace it" in capsys.readouterr().err
     assert recording.read_bytes() == b"an earlier recording"
+
+
+def test_run_prints_the_container_and_the_cycle_time_and_takes_a_catalogue(tmp_path, capsys):
+    catalogue = tmp_path / "mine.yaml"
+    catalogue.write_text("containers:\n  - {name: only one, inner: [0.5, 0.4, 0.3]}\n")
+    assert main(["run", "--planner", "heu", "--seed", "0", "--out", str(tmp_path / "out"),
+                 "--containers", str(catalogue)]) == 0
+    printed = capsys.readouterr().out
+    assert "container: only one (0.500 x 0.400 x 0.300 m inner) holds" in printed
+    assert "cycle time" in printed and "arm motion" in printed

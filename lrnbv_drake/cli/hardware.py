@@ -12,6 +12,7 @@ happens; after a stop, fix the cause and `--resume DIR`. docs/hardware.md has th
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -134,5 +135,19 @@ def _summarize(result: SessionResult) -> int:
         print(f"STOPPED ({result.fault}): {result.termination}", file=sys.stderr)
         return EXIT_FAULT
     print(f"ended: {result.termination}")
+    _print_box(result.out_dir / "report.json")
     return EXIT_DONE
+
+
+def _print_box(report_path: Path) -> None:
+    """The box and its container from the session's report: the product of the run."""
+    report = json.loads(report_path.read_text())
+    box = report.get("estimated_box")
+    if box is None:
+        print(f"no object found: {report['extraction']}")
+        return
+    dims = " x ".join(f"{v:.3f}" for v in box["dims"])
+    print(f"box L x W x H: {dims} m ({box['estimator']} estimate)")
+    if report.get("container") is not None:
+        print(f"container: {report['container']['reason']}")
 

@@ -135,9 +135,15 @@ def _print_summary(report: dict[str, Any], wall_seconds: float, out_dir: Path,
         est = " x ".join(f"{v:.3f}" for v in m["estimated_dims"])
         true = " x ".join(f"{v:.3f}" for v in m["true_dims"])
         print(f"box L x W x H: {est} m (true {true}); IoU {m['iou']:.3f}")
+    if report["container"] is not None:
+        print(f"container: {report['container']['reason']}")
     print(f"surface coverage: {100 * m['coverage']['0.01']:.1f} % within 1 cm, "
           f"{100 * m['coverage']['0.02']:.1f} % within 2 cm")
-    print(f"wall {wall_seconds:.1f} s; wrote {out_dir}/frames.npz, report.json"
+    cycle = report["cycle_time"]
+    print(f"cycle time {cycle['total_s']:.1f} s: arm motion {cycle['motion_s']:.1f} s, "
+          f"waiting for frames {cycle['settle_s']:.1f} s, computation "
+          f"{cycle['computation_s']:.1f} s")
+    print(f"wall {wall_seconds:.1f} s; wrote {out_dir}/frames.npz, report.json, report.html"
           + (", replay.html" if replay else ""))
     if not m["box_found"]:
         print(f"lrnbv run: no object found: {report['extraction']}", file=sys.stderr)

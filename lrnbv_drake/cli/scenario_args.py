@@ -17,12 +17,21 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario-text", metavar="YAML",
                         help="scenario fields as YAML, over the file, e.g. "
                              "'{max_poses: 10, sensor: {sigma0_mm: 8}}'")
+    add_containers_argument(parser)
+
+
+def add_containers_argument(parser: argparse.ArgumentParser) -> None:
+    """--containers FILE: the container catalogue (packing.containers)."""
+    parser.add_argument("--containers", metavar="FILE",
+                        help="container catalogue YAML (default: the shipped shipping boxes, "
+                             "models/containers/shipping_boxes.yaml)")
 
 
 def load_with_overrides(args: argparse.Namespace, overrides: dict[str, Any]) -> Scenario:
     """The scenario from --scenario and --scenario-text, then the flags' `overrides` (nested
     like the YAML; fields left None are not set)."""
     scenario = load_scenario(filename=args.scenario, data=args.scenario_text)
+    overrides = {**overrides, "packing": {"containers": args.containers}}
     nested = {section: ({k: v for k, v in fields.items() if v is not None}
                         if isinstance(fields, dict) else fields)
               for section, fields in overrides.items() if fields is not None}
