@@ -163,6 +163,14 @@ def test_tiny_campaign_end_to_end_and_resume(tmp_path):
         assert rows[0]["iou"] == "nan" and "The reports of HEU carry no `metrics`" in summary
     _png_size(out / "figure.png")
     _png_size(out / "coverage_curves.png")
+    # The container and the cycle time per episode, and index.html linking every report.
+    assert all(r["container"] == "L 32x23x15" and r["fits"] == "1.0" for r in rows)
+    assert all(10 < float(r["cycle_s"]) < 40 for r in rows)
+    index = (out / "index.html").read_text()
+    for r in rows:
+        link = f'href="runs/heu__horizontal_box__{r["trial"]}/report.html"'
+        assert link in index and (out / link[6:-1]).is_file()
+    assert '<img alt="figure.png" src="figure.png">' in index
     # Rerunning resumes: nothing runs again, nothing is rewritten.
     stamps = {p: p.stat().st_mtime_ns for p in out.glob("*/*") if p.is_file()}
     stamps |= {p: p.stat().st_mtime_ns for p in out.glob("runs/*/*")}

@@ -22,6 +22,7 @@ from lrnbv_drake.experiments.campaign.figures import (
     plot_campaign,
     plot_coverage_curves,
 )
+from lrnbv_drake.experiments.campaign.index_page import index_page
 from lrnbv_drake.experiments.campaign.plan import CampaignConfig
 
 #: The planner the U tests compare the others against.
@@ -49,6 +50,13 @@ METRICS: tuple[Metric, ...] = (
     Metric("auc_1cm", "coverage AUC, 1 cm"),
     Metric("n_poses", "poses"),
     Metric("n_useless_poses", "useless poses"),
+    Metric("poses_to_5mm", "poses to 5 mm (n_poses + 1: never)"),
+    Metric("poses_to_10mm", "poses to 10 mm (n_poses + 1: never)"),
+    Metric("truth_in_interval", "share of L, W, H inside the interval"),
+    Metric("fits", "container fits (1 yes, 0 no)"),
+    Metric("right_size", "container right size (1 yes, 0 no)"),
+    Metric("wasted_volume", "container volume wasted (share)"),
+    Metric("cycle_s", "cycle time (s)"),
     Metric("wall_seconds", "wall time (s)"),
 )
 
@@ -56,8 +64,9 @@ CSV_COLUMNS: tuple[str, ...] = (
     "planner", "object", "trial", "seed", "status", "n_poses", "n_useless_poses",
     "coverage_1cm", "coverage_2cm", "auc_1cm", "auc_2cm", "iou",
     "est_L", "est_W", "est_H", "true_L", "true_W", "true_H", "abs_err_L", "abs_err_W",
-    "abs_err_H", "object_x", "object_y", "object_yaw_deg", "termination", "wall_seconds",
-    "error",
+    "abs_err_H", "poses_to_5mm", "poses_to_10mm", "truth_in_interval", "container", "fits",
+    "right_size", "wasted_volume", "cycle_s", "motion_s", "settle_s", "computation_s",
+    "object_x", "object_y", "object_yaw_deg", "termination", "wall_seconds", "error",
 )
 
 
@@ -95,10 +104,39 @@ def episode_row(record: dict[str, Any]) -> dict[str, Any]:
         "wall_seconds": _num((record.get("timing") or {}).get("wall_seconds")),
         "error": fields["error"],
     }
+    row.update(_accuracy_and_packing(record, metrics, row["n_poses"]))
     for prefix, key in (("est", "estimated_dims"), ("true", "true_dims"),
                         ("abs_err", "abs_dim_errors")):
         row.update(zip((f"{prefix}_{d}" for d in "LWH"), _three(metrics.get(key)), strict=True))
     return row
+
+
+def _flag(value: Any) -> float:
+    return math.nan if value is None else float(bool(value))
+
+
+def _accuracy_and_packing(record: dict[str, Any], metrics: dict[str, Any],
+                          n_poses: float) -> dict[str, Any]:
+    """The box-accuracy, container and cycle-time columns. A pose count to an accuracy the
+    episode never reached is n_poses + 1, so that the median and the U test rank it last."""
+    def poses_to(key: str) -> float:
+        if key not in metrics:
+            return math.nan
+        return float(n_poses + 1 if metrics[key] is None else metrics[key])
+
+    inside = metrics.get("truth_in_interval")
+    packing = metrics.get("packing") or {}
+    cycle = record.get("cycle_time") or {}
+    return {
+        "poses_to_5mm": poses_to("poses_to_5mm"), "poses_to_10mm": poses_to("poses_to_10mm"),
+        "truth_in_interval": float(np.mean(inside)) if inside else math.nan,
+        "container": (record.get("container") or {}).get("name") or "",
+        "fits": _flag(packing.get("fits")), "right_size": _flag(packing.get("right_size")),
+        "wasted_volume": _num(packing.get("wasted_volume")),
+        "cycle_s": _num(cycle.get("total_s")), "motion_s": _num(cycle.get("motion_s")),
+        "settle_s": _num(cycle.get("settle_s")),
+        "computation_s": _num(cycle.get("computation_s")),
+    }
 
 
 def coverage_curves(records: Iterable[dict[str, Any]]) -> dict[tuple[str, str], list[np.ndarray]]:
@@ -239,7 +277,8 @@ def _comparison_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) ->
 
 
 def write_outputs(config: CampaignConfig, records: Sequence[dict[str, Any]]) -> None:
-    """results.csv, summary.md, figure.png and coverage_curves.png from the records."""
+    """results.csv, summary.md, figure.png, coverage_curves.png and index.html from the
+    records."""
     out_dir = config.out_dir
     rows = [episode_row(r) for r in records]
     write_results_csv(out_dir / "results.csv", rows)
@@ -249,4 +288,5 @@ def write_outputs(config: CampaignConfig, records: Sequence[dict[str, Any]]) -> 
     plot_campaign(ok, object_labels, config.planners, out_dir / "figure.png")
     plot_coverage_curves(coverage_curves(records), object_labels, config.planners,
                          out_dir / "coverage_curves.png")
+    (out_dir / "index.html").write_text(index_page(out_dir, records, rows))
 
