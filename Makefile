@@ -19,7 +19,9 @@ $(STAMP): pyproject.toml
 	  { echo 'error: libEGL.so.1 is missing; install libegl1 (Debian/Ubuntu) for the simulated sensor'; exit 1; }
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	@# setuptools warns on every editable install that a folder named like the package shadows it:
+	@# here that folder is the package itself, so the warning says nothing.
+	PYTHONWARNINGS='ignore:Editable installation' $(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
 run: $(STAMP)
