@@ -9,8 +9,9 @@ it, let the map take it in, plan again.
               the stop, then record it as an `Acquisition`
     WAIT_MAP  wait 1.5 ticks: the map inserts the frame on the next tick, the planner reads
               the updated map on the one after; then PLAN
-    DONE      the policy is done, `max_poses` frames were recorded, or no proposed viewpoint
-              could be reached `max_failed_proposals` times in a row
+    DONE      the policy is done, the stop rule says the box is known (`stop`), `max_poses`
+              frames were recorded, or no proposed viewpoint could be reached
+              `max_failed_proposals` times in a row
 
 The `AcquisitionLoop` system steps it from a periodic update and reads its inputs through
 `AcquisitionInputs`; the hardware session and the simulated episode share it unchanged.
@@ -27,6 +28,7 @@ import numpy as np
 
 from lrnbv_drake.core.motion import MotionPlanning, Trajectory
 from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation, ViewpointPolicy
+from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.core.sensor import ToFFrame
 
 #: A motion starts from the last command, not from the measured joints, when no joint is
@@ -172,7 +174,7 @@ class AcquisitionSequencer:
 
     def __init__(self, policy: ViewpointPolicy, motion: MotionPlanning, *, period: float,
                  frame_period: float, settle_frames: int = 1, max_poses: int = 50,
-                 max_failed_proposals: int = 5) -> None:
+                 max_failed_proposals: int = 5, stop: BoxStop | None = None) -> None:
         if not period > 0 or not frame_period > 0:
             raise ValueError(f"period and frame_period must be > 0, got {period} and "
                              f"{frame_period}")
@@ -184,6 +186,7 @@ class AcquisitionSequencer:
         self._settle = settle_frames * frame_period
         self._max_poses = max_poses
         self._max_failed = max_failed_proposals
+        self._stop = stop
 
     def initial_state(self, q_initial: np.ndarray, history: EpisodeLog | None = None
                       ) -> AcquisitionState:
@@ -245,6 +248,16 @@ class AcquisitionSequencer:
             self._finish(s, f"reached the cap of {self._max_poses} poses")
             return
         started = time.perf_counter()
+        if self._stop is not None and observation.n_acquisitions > 0:
+            extraction = observation.extraction
+            reason = self._stop.update(
+                [(a.frame, a.X_WS) for a in s.log.acquisitions],
+                extraction.oriented_box if extraction is not None and extraction.found
+                else None)
+            if reason is not None:
+                s.log.policy_seconds.append(time.perf_counter() - started)
+                self._finish(s, reason)
+                return
         proposal = self.policy.propose(observation)
         s.log.policy_seconds.append(time.perf_counter() - started)
         if proposal.done:

@@ -50,6 +50,7 @@ from lrnbv_drake.station.parts import (
     PLANNERS,
     extraction_params,
     make_policy,
+    make_stop,
     map_system,
     zone_geometry,
 )
@@ -110,7 +111,7 @@ def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = No
     loop = builder.AddNamedSystem("acquisition_loop", AcquisitionLoop(
         policy, motion, scenario.robot.initial_position, period=period,
         frame_period=scenario.sensor.period, settle_frames=scenario.sensor.settle_frames,
-        max_poses=scenario.max_poses, history=history))
+        max_poses=scenario.max_poses, history=history, stop=make_stop(planner, scenario)))
     occupancy = builder.AddNamedSystem("map", map_system(scenario, period))
     clustering = builder.AddNamedSystem("clustering",
                                         ObjectClustering(extraction_params(scenario)))

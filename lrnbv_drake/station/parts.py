@@ -17,6 +17,7 @@ from lrnbv_drake.core.perception import ExtractionParams
 from lrnbv_drake.core.planning.heu import HeuPolicy
 from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
+from lrnbv_drake.core.planning.stop import BoxStop, BoxStopParams
 from lrnbv_drake.core.robot_safety import SafetyLimits
 from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams, ZoneGeometry
 from lrnbv_drake.station.motion import MotionPlanner
@@ -109,6 +110,20 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
             ik=motion.ik_batch, collision_free=motion.collision_free,
             table_height=scenario.cell.table_height, seed=scenario.seed, variant=planner)
     raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
+
+
+def make_stop(planner: str, scenario: Scenario) -> BoxStop | None:
+    """The stop rule `planner.stop.rule` names for LR-NBV and NBV (HEU's sweep is fixed):
+    None for the paper's line 24 alone."""
+    stop = scenario.planner.stop
+    if stop.rule not in ("paper", "box"):
+        raise ScenarioError(f"field 'planner.stop.rule': expected 'paper' or 'box', got "
+                            f"{stop.rule!r}")
+    if stop.rule == "paper" or planner == "heu":
+        return None
+    return BoxStop(BoxEstimator(sensor_params(scenario), scenario.cell.table_height),
+                   BoxStopParams(tolerance=stop.tolerance, stable_poses=stop.stable_poses,
+                                 min_poses=stop.min_poses))
 
 
 def container_catalogue(scenario: Scenario) -> list[Container]:

@@ -51,6 +51,19 @@ class TreeParams:
 
 
 @dc.dataclass
+class StopParams:
+    """When an LR-NBV or NBV episode ends, besides the pose cap (core/planning/stop.py)."""
+
+    # "paper": Algorithm 1, line 24 alone. "box": also when every dimension of the box
+    # estimate has moved less than `tolerance` (m) over the last `stable_poses` poses, once
+    # `min_poses` were taken.
+    rule: str = "paper"
+    tolerance: float = 0.005
+    stable_poses: int = 2
+    min_poses: int = 4
+
+
+@dc.dataclass
 class PlannerParams:
     """LR-NBV's parameters."""
 
@@ -72,3 +85,4 @@ class PlannerParams:
     # Where to look for the object while none has been found (world box, metres).
     search_lower: list[float] = dc.field(default_factory=lambda: [0.25, -0.3, 0.0])
     search_upper: list[float] = dc.field(default_factory=lambda: [0.75, 0.3, 0.3])
+    stop: StopParams = dc.field(default_factory=StopParams)
