@@ -10,7 +10,7 @@ from pydrake.common.yaml import yaml_dump_typed
 
 from lrnbv_drake.experiments.episode import run_episode
 from lrnbv_drake.station.resources import MODELS_DIR
-from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario, override
+from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario, override, preset
 
 
 def test_defaults_and_override(tmp_path):
@@ -114,3 +114,13 @@ def test_an_override_replaces_only_the_fields_it_names():
     assert (dut.robot.robot_ip, dut.robot.speed_fraction) == ("10.0.0.2", 0.3)
     with pytest.raises(ScenarioError, match=r"robot\.speed"):
         override(base, {"robot": {"speed": 1}})
+
+
+def test_the_paper_preset_sets_the_papers_estimator_and_stop_and_nothing_else():
+    paper, product = preset("paper"), preset(None)
+    assert (paper.extraction.estimator, paper.planner.stop.rule) == ("cells", "paper")
+    assert (product.extraction.estimator, product.planner.stop.rule) == ("model", "box")
+    paper.extraction.estimator, paper.planner.stop.rule = "model", "box"
+    assert yaml_dump_typed(paper) == yaml_dump_typed(product)
+    with pytest.raises(ScenarioError, match="unknown preset 'papers'"):
+        preset("papers")

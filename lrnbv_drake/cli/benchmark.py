@@ -18,7 +18,7 @@ from pathlib import Path
 from lrnbv_drake.cli.arg_types import positive_int, seed
 from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir
 from lrnbv_drake.cli.run import EXIT_BAD_INPUT, EXIT_INTERRUPTED
-from lrnbv_drake.cli.scenario_args import add_containers_argument
+from lrnbv_drake.cli.scenario_args import add_containers_argument, add_preset_argument
 from lrnbv_drake.experiments.campaign.plan import (
     BACKENDS,
     CampaignConfig,
@@ -29,7 +29,7 @@ from lrnbv_drake.experiments.campaign.plan import (
 )
 from lrnbv_drake.experiments.campaign.run import CampaignInterrupted, run_campaign
 from lrnbv_drake.experiments.episode import PLANNERS
-from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario, override
+from lrnbv_drake.station.scenario import ScenarioError, load_scenario, override, preset
 from lrnbv_drake.station.scenario_checks import check_placement
 
 EPILOG = """\
@@ -90,6 +90,7 @@ def add_benchmark_command(subparsers: argparse._SubParsersAction) -> argparse.Ar
     parser.add_argument("--scenario", help="scenario YAML: cell, sensor, object scale and "
                                            "placement; its object is replaced by --objects")
     add_containers_argument(parser)
+    add_preset_argument(parser)
     parser.add_argument("--seed", type=seed,
                         help="base seed, >= 0, from which each (object, trial) derives its "
                              "own (default: the scenario's, 0)")
@@ -110,7 +111,7 @@ def add_benchmark_command(subparsers: argparse._SubParsersAction) -> argparse.Ar
 def config_from_args(args: argparse.Namespace) -> CampaignConfig:
     """The campaign the parsed arguments describe; checks every object mesh loads and every
     episode's placement (as `lrnbv run` does) before anything runs."""
-    scenario = load_scenario(filename=args.scenario) if args.scenario else Scenario()
+    scenario = load_scenario(filename=args.scenario, defaults=preset(args.preset))
     if args.containers is not None:
         scenario = override(scenario, {"packing": {"containers": args.containers}})
     found = load_objects(args.objects, scenario.object.scale)

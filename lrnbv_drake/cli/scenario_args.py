@@ -7,17 +7,25 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from lrnbv_drake.station.scenario import Scenario, load_scenario, override
+from lrnbv_drake.station.scenario import PRESETS, Scenario, load_scenario, override, preset
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     """--scenario FILE and --scenario-text YAML, read in that order (as Drake's hardware_sim);
     a command's own flags override both."""
+    add_preset_argument(parser)
     parser.add_argument("--scenario", help="scenario YAML file")
     parser.add_argument("--scenario-text", metavar="YAML",
                         help="scenario fields as YAML, over the file, e.g. "
                              "'{max_poses: 10, sensor: {sigma0_mm: 8}}'")
     add_containers_argument(parser)
+
+
+def add_preset_argument(parser: argparse.ArgumentParser) -> None:
+    """--preset NAME: the scenario to start from, before --scenario and the flags."""
+    parser.add_argument("--preset", choices=sorted(PRESETS),
+                        help="start from a named configuration: 'paper' is the paper's "
+                             "(cell box, Algorithm 1's stop); by default the product's")
 
 
 def add_containers_argument(parser: argparse.ArgumentParser) -> None:
@@ -30,7 +38,8 @@ def add_containers_argument(parser: argparse.ArgumentParser) -> None:
 def load_with_overrides(args: argparse.Namespace, overrides: dict[str, Any]) -> Scenario:
     """The scenario from --scenario and --scenario-text, then the flags' `overrides` (nested
     like the YAML; fields left None are not set)."""
-    scenario = load_scenario(filename=args.scenario, data=args.scenario_text)
+    scenario = load_scenario(filename=args.scenario, data=args.scenario_text,
+                             defaults=preset(args.preset))
     overrides = {**overrides, "packing": {"containers": args.containers}}
     nested = {section: ({k: v for k, v in fields.items() if v is not None}
                         if isinstance(fields, dict) else fields)

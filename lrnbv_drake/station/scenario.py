@@ -288,6 +288,27 @@ def check_against_schema(data: typing.Any, schema: type, path: str = "") -> None
         _check_value(value, hints[key], where)
 
 
+#: Named starting points for a scenario (`--preset NAME`): "paper" is the paper's
+#: configuration where the product's defaults differ from it (docs/results.md measures both):
+#: the box around the occupied map cells, and Algorithm 1's line 24 as the only stop.
+PRESETS: dict[str, str] = {
+    "paper": "{extraction: {estimator: cells}, planner: {stop: {rule: paper}}}",
+}
+
+
+def preset(name: str | None) -> Scenario:
+    """The scenario a preset names, or the defaults for None.
+
+    Raises:
+        ScenarioError: an unknown name, with the known ones.
+    """
+    if name is None:
+        return Scenario()
+    if name not in PRESETS:
+        raise ScenarioError(f"unknown preset {name!r}: expected one of {sorted(PRESETS)}")
+    return load_scenario(data=PRESETS[name])
+
+
 def override(scenario: Scenario, overrides: dict[str, typing.Any]) -> Scenario:
     """`scenario` with the fields in `overrides` (nested mappings, as in a scenario file)
     replaced, checked like a file. Every command-line flag that sets a field goes through here.
