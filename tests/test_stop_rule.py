@@ -52,8 +52,8 @@ def test_it_stops_once_the_dimensions_held_still_over_k_poses_and_not_before():
 def test_it_waits_for_the_minimum_and_for_an_estimate():
     still = [(300, 200, 120)] * 6
     assert _first_stop(still, BoxStopParams(0.005, 2, 5)) == 5
-    assert _first_stop([None, None, None] + still[:2], BoxStopParams(0.005, 2, 1)) is None
-    assert _first_stop([None] + still[:3], BoxStopParams(0.005, 2, 1)) == 4
+    assert _first_stop([None, None, None, *still[:2]], BoxStopParams(0.005, 2, 1)) is None
+    assert _first_stop([None, *still[:3]], BoxStopParams(0.005, 2, 1)) == 4
 
 
 def test_each_acquisition_is_added_once_and_the_cell_box_starts_the_fit():
