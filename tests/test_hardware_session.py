@@ -8,6 +8,7 @@ nothing asserts on how long anything took."""
 from __future__ import annotations
 
 import json
+import time
 
 import fake_rtde
 import numpy as np
@@ -17,18 +18,13 @@ from pydrake.common.yaml import yaml_dump_typed
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.planning.heu import HeuParams, heu_poses
+from lrnbv_drake.core.robot_safety import RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorTimeout
 from lrnbv_drake.experiments import session
 from lrnbv_drake.experiments.episode import run_episode
 from lrnbv_drake.experiments.recording import AcquisitionJournal, RecordingError
-from lrnbv_drake.experiments.session import (
-    JOURNAL_FILE,
-    MAP_FILE,
-    SESSION_FILE,
-    SessionError,
-    resume,
-    run_session,
-)
+from lrnbv_drake.experiments.session import SESSION_FILE, SessionError, resume, run_session
+from lrnbv_drake.experiments.session_monitor import JOURNAL_FILE, MAP_FILE
 from lrnbv_drake.station.cell import make_cell
 from lrnbv_drake.station.cell_models import place_object
 from lrnbv_drake.station.motion import MotionPlanner
@@ -80,10 +76,11 @@ def test_the_episode_runs_to_its_cap_on_the_real_drivers(finished):
     assert result.fault is None and result.termination == "reached the cap of 2 poses"
     assert len(questions) == 1 and "fake-ur5e" in questions[0]
     assert [kind for kind, _ in arm.connections] == ["receive", "receive", "control"]
-    names = [c.name for c in arm.calls]
-    assert names.count("servoJ") > 10
-    assert names[-4:] == ["servoStop", "stopScript", "disconnect-control",
-                          "disconnect-receive"]
+    names = [name for name in arm.names() if name != "kickWatchdog"]
+    assert names.count("servoJ") > 10 and names.count("setWatchdog") == 1
+    assert names[-4:-2] == ["servoStop", "stopScript"]  # then both disconnects, in parallel
+    assert sorted(names[-2:]) == ["disconnect-control", "disconnect-receive"]
+    assert result.moved
     report = json.loads((out / "report.json").read_text())
     assert report["fault"] is None and report["n_poses"] == 2
     assert report["sensor_stats"]["frames"] > 2 and report["sensor_stats"]["bad_crc"] == 0
@@ -157,7 +154,7 @@ def test_a_protective_stop_stops_saves_and_explains(stopped):
     assert result.fault == "protective_stop"
     assert "protective stop on fake-ur5e" in result.termination
     assert "lrnbv hardware --resume" in result.termination
-    after = [c.name for c in arm.calls[injected[0]:]]
+    after = [c.name for c in arm.calls[injected[0]:] if c.name != "kickWatchdog"]
     assert after.count("servoJ") <= 3  # the receiver sees the stop within a period or two
     assert "servoStop" in after
     assert _journal_lines(out) == 1
@@ -182,6 +179,75 @@ def test_resume_continues_the_episode_from_where_the_arm_is(stopped, tmp_path):
     runs = json.loads((out / SESSION_FILE).read_text())["runs"]
     assert [r["recorded_before"] for r in runs] == [0, 1]
     np.testing.assert_allclose(runs[1]["q_start"], old_arm.q, atol=1e-9)
+
+
+def _when_moving_to_the_second_pose(out, q_first_pose, act):
+    """An on_servo hook that calls act(arm) once, on the way from the first pose to the
+    second (one acquisition on disk, the command away from the first pose)."""
+    def hook(arm, q):
+        if not hook.at and _journal_lines(out) == 1 and np.abs(q - q_first_pose).max() > 0.01:
+            hook.at = time.monotonic()
+            act(arm)
+    hook.at = None
+    return hook
+
+
+def test_a_lost_link_ends_the_run_in_bounded_time_without_blocking_calls(
+        scenario, q_first_pose, tmp_path, monkeypatch):
+    """The link goes silent mid-motion: stale getters, isConnected still true, servoJ still
+    "accepted", stops that would block. The clock's silence ends the run and shutting down
+    takes under 3 s (the issue's bound), with everything captured on disk."""
+    arm = fake_rtde.FakeArm(q_first_pose)
+    arm.on_servo = hook = _when_moving_to_the_second_pose(tmp_path, q_first_pose,
+                                                          fake_rtde.FakeArm.drop_link)
+    fake_rtde.install(monkeypatch, arm)
+    result = run_session(scenario, "heu", tmp_path, confirm=lambda text: True)
+    ended = time.monotonic()
+    assert hook.at is not None and result.fault == "disconnected" and result.moved
+    assert "no new RTDE data" in result.termination and "watchdog" in result.termination
+    dropped = [c for c in arm.calls if c.wall_time >= hook.at]
+    assert not {"servoStop", "stopScript"} & {c.name for c in dropped}
+    last_servo = max(c.wall_time for c in dropped if c.name == "servoJ")
+    assert ended - last_servo < 3.0  # shutdown after the loss was detected
+    assert ended - hook.at < 5.0  # the whole run after the fault
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["fault"] == "disconnected" and report["n_poses"] == 1 == _journal_lines(tmp_path)
+
+
+def test_an_error_after_motion_says_what_happened_and_what_is_on_disk(
+        scenario, q_first_pose, tmp_path, monkeypatch, capsys):
+    """The disk fills up while the second acquisition is journaled: the CLI reports a fault
+    after motion (exit 1), not "nothing moved" (exit 2), and says what is on disk."""
+    arm = fake_rtde.FakeArm(q_first_pose)
+    fake_rtde.install(monkeypatch, arm)
+    append = AcquisitionJournal.append
+
+    def full_disk(journal, acquisition):
+        if acquisition.index == 1:
+            raise OSError(28, "No space left on device")
+        append(journal, acquisition)
+    monkeypatch.setattr(AcquisitionJournal, "append", full_disk)
+    file = tmp_path / "cell.yaml"
+    file.write_text(SCENARIO)
+    out = tmp_path / "out"
+    assert main(["hardware", "--scenario", str(file), "--out", str(out), "--planner", "heu",
+                 "--yes"]) == 1
+    err = capsys.readouterr().err
+    assert "nothing moved" not in err and "STOPPED (error)" in err
+    assert "No space left on device" in err and "the arm may have moved" in err
+    assert "1 of 2 acquisitions in acquisitions.jsonl, all of them in frames.npz" in err
+    assert f"--resume {out}" in err
+    assert np.load(out / "frames.npz")["q"].shape == (2, 6) and _journal_lines(out) == 1
+
+
+def test_speed_scaling_refuses_the_start(scenario, q_first_pose, tmp_path, monkeypatch):
+    arm = fake_rtde.FakeArm(q_first_pose)
+    arm.target_speed_fraction = arm.speed_scaling = 0.7
+    fake_rtde.install(monkeypatch, arm)
+    with pytest.raises(RobotFault, match="speed slider at 70%") as info:
+        run_session(scenario, "heu", tmp_path, confirm=lambda text: True)
+    assert info.value.kind == "speed_scaling"
+    assert [kind for kind, _ in arm.connections] == ["receive"]
 
 
 def test_resume_rebuilds_lrnbv_and_does_not_capture_the_start_pose_again(tmp_path):

@@ -14,15 +14,26 @@ from pydrake.systems.analysis import Simulator
 
 from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.tof_protocol import MAX_LINE_BYTES
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
 from lrnbv_drake.drivers.tof_serial import SensorTimeout, ToFSerialReader
 from lrnbv_drake.station.cell import make_cell
-from lrnbv_drake.station.hardware_cell import check_hardware_config, make_hardware_cell
+from lrnbv_drake.station.hardware_cell import (
+    TRANSPORT_LATENCY,
+    check_hardware_config,
+    make_hardware_cell,
+)
+from lrnbv_drake.station.parts import safety_limits
 from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario
 from lrnbv_drake.systems.tof_frame_stamper import ToFFrameStamper
 
 HOME = kinematics.HOME.copy()
 DRY = "hardware: {robot_driver: playback, sensor_driver: simulated}"
+
+
+def _dry(fields: str) -> str:
+    """The dry run's hardware section with more fields."""
+    return DRY[:-1] + ", " + fields + "}"
 
 
 def _ports(diagram):
@@ -94,7 +105,8 @@ def test_make_cell_hardware_streams_simulated_frames_through_the_serial_driver()
                                     sequence=frame.sequence)
         np.testing.assert_array_equal(frame.distance_mm, expected.distance_mm)
         np.testing.assert_array_equal(frame.status, expected.status)
-        assert 0 < frame.timestamp_us <= context.get_time() * 1e6
+        # Seen at t, stamped t - latency (clipped at 0): the diagram clock, not the board's.
+        assert 0 <= frame.timestamp_us <= context.get_time() * 1e6
     finally:
         station.hardware.close()
 
@@ -107,10 +119,36 @@ def test_make_cell_hardware_streams_simulated_frames_through_the_serial_driver()
     ("hardware: {robot_driver: playback, sensor_driver: simulated, servo_gain: 50}",
      "hardware.servo_gain"),
     ("hardware: {robot_driver: ros}", "hardware.robot_driver"),
+    (_dry("max_speed_fraction: 1.5"), "hardware.max_speed_fraction"),
+    (_dry("max_speed_fraction: 0"), "hardware.max_speed_fraction"),
+    (_dry("watchdog_frequency: -1"), "hardware.watchdog_frequency"),
+    (_dry("joint_lower: [0, 0, 0, 0, 0]"), "hardware.joint_lower"),
+    (_dry("joint_upper: [7, 1, 1, 1, 1, 1]"), "hardware.joint_lower/upper"),
+    (_dry("joint_lower: [1, -1, -1, -1, -1, -1], joint_upper: [0, 1, 1, 1, 1, 1]"),
+     "hardware.joint_lower"),
 ])
 def test_configuration_errors_name_the_field(data, field):
     with pytest.raises(ScenarioError, match=field.replace(".", r"\.")):
         check_hardware_config(load_scenario(data=data))
+
+
+def test_the_transport_allowance_covers_a_full_read_out_and_the_longest_line():
+    """The VL53L8CX's 8x8 read-out with every output on (about 1.4 kB over I2C at 400 kHz, 9
+    bits a byte) and the longest `$TOF` line at the scenario's baud (10 bits a byte)."""
+    i2c = 1400 * 9 / 400e3
+    uart = (MAX_LINE_BYTES + 2) * 10 / Scenario().sensor.baud
+    assert TRANSPORT_LATENCY >= i2c + uart
+
+
+def test_the_command_checks_use_the_controllers_joint_limits():
+    scenario = load_scenario(data="hardware: {joint_lower: [-3, -3, -3, -3, -3, -3], "
+                                  "joint_upper: [3, 3, 3, 3, 3, 3]}")
+    limits = safety_limits(scenario, np.eye(4), np.eye(4))
+    np.testing.assert_array_equal(limits.joint_upper, np.full(6, 3.0))
+    q = HOME + np.r_[3.2, 0, 0, 0, 0, 0]
+    assert "outside the controller's limits" in limits.check(q, q, np.zeros(6), q, 0.008).reason
+    np.testing.assert_array_equal(safety_limits(Scenario(), np.eye(4), np.eye(4)).joint_lower,
+                                  kinematics.JOINT_LOWER)
 
 
 # --- ToFFrameStamper alone ------------------------------------------------------------------

@@ -1,60 +1,38 @@
-"""The RTDE driver: `RtdeRobot` against fake ur_rtde modules, `read_status`, the safety checks,
-and the receiver and sender systems each alone. The URSim test runs only with URSIM_HOST set."""
+"""The RTDE driver: `RtdeRobot` against fake ur_rtde modules (tests/fake_rtde.py), and the
+receiver and sender systems each alone; the status and command checks are in
+test_hardware_faults_checks.py. The URSim test runs only with URSIM_HOST set."""
 
 from __future__ import annotations
 
+import dataclasses as dc
 import os
 import time
 
 import fake_rtde
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from fake_rtde import PERIOD, ok_status, open_limits
 from pydrake.systems.analysis import Simulator
 
 from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.robot_safety import (
     RobotConnectionError,
     RobotFault,
-    SafetyLimits,
     Ur5eStatus,
     read_status,
     tcp_pose_error,
 )
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
-from lrnbv_drake.drivers.rtde_robot import (
-    FLAG_UPLOAD_SCRIPT,
-    FLAG_UPPER_RANGE_REGISTERS,
-    RtdeRobot,
+from lrnbv_drake.drivers.rtde_client import FLAG_UPLOAD_SCRIPT, FLAG_UPPER_RANGE_REGISTERS
+from lrnbv_drake.drivers.rtde_robot import RtdeRobot
+from lrnbv_drake.systems.ur5e_command_sender import (
+    SERVOJ_ACCELERATION,
+    SERVOJ_SPEED,
+    Ur5eCommandSender,
 )
-from lrnbv_drake.station.motion import trapezoidal_trajectory
-from lrnbv_drake.systems.ur5e_command_sender import Ur5eCommandSender
 from lrnbv_drake.systems.ur5e_status_receiver import Ur5eStatusReceiver
 
 HOME = kinematics.HOME.copy()
-PERIOD = 0.008
-# tool0 -> sensor and world -> base of the shipped cell are not needed to test the joint
-# checks: identity frames and a box that holds every reachable sensor position.
-WIDE_OPEN = dict(X_W_base=np.eye(4), X_tool0_S=np.eye(4), workspace_lower=np.full(3, -2.0),
-                 workspace_upper=np.full(3, 2.0), min_sensor_z=-2.0)
-
-
-def _limits(speed=0.6, acceleration=0.6, jump=0.002, **overrides) -> SafetyLimits:
-    args = dict(joint_lower=np.asarray(kinematics.JOINT_LOWER),
-                joint_upper=np.asarray(kinematics.JOINT_UPPER),
-                max_velocity=kinematics.VELOCITY_LIMIT * speed,
-                max_acceleration=kinematics.ACCELERATION_LIMIT * acceleration,
-                jump_tolerance=jump, max_tracking_error=0.3, **WIDE_OPEN)
-    args.update(overrides)
-    return SafetyLimits(**args)
-
-
-def _ok_status(q=HOME, **changes) -> Ur5eStatus:
-    fields = dict(q=np.asarray(q, float), connected=True, program_running=True, robot_mode=7,
-                  safety_mode=1, controller_time=1.0)
-    fields.update(changes)
-    return Ur5eStatus(**fields)
 
 
 class RecordingRobot(PlaybackRobot):
@@ -63,6 +41,9 @@ class RecordingRobot(PlaybackRobot):
     def __init__(self, q=HOME):
         super().__init__(q)
         self.commands: list[tuple[str, tuple]] = []
+
+    def kick_watchdog(self):
+        self.commands.append(("kick", ()))
 
     def servo_j(self, q, speed, acceleration, time, lookahead_time, gain):
         self.commands.append(("servo_j", (np.array(q), speed, acceleration, time,
@@ -80,24 +61,28 @@ class RecordingRobot(PlaybackRobot):
 # --- RtdeRobot ------------------------------------------------------------------------------
 
 
-def test_rtde_robot_connects_both_interfaces_and_sends_servoj_positionally(monkeypatch):
+def test_rtde_robot_connects_sets_the_watchdog_and_sends_servoj_positionally(monkeypatch):
     arm = fake_rtde.FakeArm(HOME)
     fake_rtde.install(monkeypatch, arm)
-    robot = RtdeRobot("10.0.0.5", frequency=500.0, upper_range_registers=True)
+    robot = RtdeRobot("10.0.0.5", frequency=500.0, upper_range_registers=True,
+                      watchdog_frequency=12.5)
     assert arm.connections == [
         ("receive", ("10.0.0.5", 500.0, True)),
         ("control", ("10.0.0.5", 500.0, FLAG_UPLOAD_SCRIPT | FLAG_UPPER_RANGE_REGISTERS))]
+    assert [c.args for c in arm.calls if c.name == "setWatchdog"] == [(12.5,)]
     q = HOME + 0.01
     # The fake's servoJ is positional-only, as the wheel's: keywords would raise TypeError.
     assert robot.servo_j(q, 1.0, 2.0, PERIOD, 0.1, 300.0)
     (call,) = [c for c in arm.calls if c.name == "servoJ"]
     np.testing.assert_allclose(call.args[0], q)
     assert call.args[1:] == (1.0, 2.0, PERIOD, 0.1, 300.0)
-    np.testing.assert_allclose(robot.get_actual_q(), HOME, atol=1e-2)
-    assert robot.is_connected() and robot.is_program_running()
+    reading = robot.read()
+    np.testing.assert_allclose(reading.q, HOME, atol=1e-2)
+    assert reading.connected and reading.program_running and reading.speed_scaling == 1.0
     robot.disconnect()
-    assert [c.name for c in arm.calls[-3:]] == ["stopScript", "disconnect-control",
-                                                 "disconnect-receive"]
+    names = arm.names()
+    assert names[-3] == "stopScript"  # then both disconnects, in parallel
+    assert sorted(names[-2:]) == ["disconnect-control", "disconnect-receive"]
 
 
 def test_a_read_only_connection_uploads_no_script_and_refuses_commands(monkeypatch):
@@ -105,9 +90,12 @@ def test_a_read_only_connection_uploads_no_script_and_refuses_commands(monkeypat
     fake_rtde.install(monkeypatch, arm)
     robot = RtdeRobot("10.0.0.5", control=False)
     assert [kind for kind, _ in arm.connections] == ["receive"]
-    assert not robot.is_program_running()
+    assert not robot.read().program_running
+    robot.kick_watchdog()
     with pytest.raises(RobotFault, match="read-only"):
         robot.servo_j(HOME, 1.0, 1.0, PERIOD, 0.1, 300.0)
+    robot.disconnect()
+    assert "setWatchdog" not in arm.names() and "kickWatchdog" not in arm.names()
 
 
 def test_a_failed_connection_says_what_to_check_and_closes_what_was_open(monkeypatch):
@@ -119,107 +107,78 @@ def test_a_failed_connection_says_what_to_check_and_closes_what_was_open(monkeyp
     assert "Remote Control" in str(info.value) and "10.0.0.9" in str(info.value)
 
 
-# --- Status ---------------------------------------------------------------------------------
+def test_the_client_feeds_the_watchdog_while_the_diagram_is_held_and_not_longer(monkeypatch):
+    """Between commands (a planning step holds the diagram) the client kicks the watchdog
+    for `watchdog_hold` seconds after the diagram's last sign of life, then lets it trip."""
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+    robot = RtdeRobot("10.0.0.5", watchdog_frequency=10.0, watchdog_hold=0.3)
+    robot.kick_watchdog()
+    time.sleep(0.2)
+    held = arm.names().count("kickWatchdog")
+    assert held >= 4  # the diagram's kick and the client's, every 20 ms
+    time.sleep(0.4)  # past the hold: nothing more
+    stalled = arm.names().count("kickWatchdog")
+    time.sleep(0.2)
+    assert arm.names().count("kickWatchdog") == stalled
+    robot.kick_watchdog()  # the diagram is back
+    time.sleep(0.2)
+    assert arm.names().count("kickWatchdog") > stalled + 2
+    robot.disconnect()
 
 
-def test_read_status_reads_everything_and_the_fake_tcp_pose_is_our_tool0():
-    robot = PlaybackRobot(HOME)
-    status = read_status(robot, 1.5, Ur5eStatus())
-    np.testing.assert_allclose(status.q, HOME)
-    assert status.time == 1.5 and status.connected and status.fault() is None
-    assert tcp_pose_error(status.q, status.tcp_pose) == pytest.approx((0.0, 0.0), abs=1e-9)
+def test_servoj_range_errors_and_a_dead_client_reach_the_caller(monkeypatch):
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+    robot = RtdeRobot("10.0.0.5")
+    with pytest.raises(ValueError, match=r"not within \[0;3\.14\]"):
+        robot.servo_j(HOME, np.pi, 1.0, PERIOD, 0.1, 300.0)  # pi * 1.0 > 3.14
+    robot.disconnect()
+    with pytest.raises(RuntimeError, match="ur_rtde client"):
+        robot.read()
 
 
-def test_tcp_pose_error_sees_a_tcp_offset():
-    pose = PlaybackRobot(HOME).get_actual_tcp_pose()
-    pose[2] += 0.05
-    dp, dr = tcp_pose_error(HOME, pose)
-    assert dp == pytest.approx(0.05) and dr == pytest.approx(0.0, abs=1e-9)
+def test_on_a_silent_link_nothing_blocks_and_no_stop_is_tried_when_closing(monkeypatch):
+    """ur_rtde's getters go stale, isConnected is late and servoJ says True; servoStop and
+    stopScript would block. The driver bounds servoStop and closes without either."""
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+    robot = RtdeRobot("10.0.0.5")
+    arm.block_seconds = 4.0
+    arm.drop_link()
+    first, second = robot.read(), robot.read()
+    assert first.controller_time == second.controller_time and second.connected
+    assert robot.servo_j(HOME, 0.5, 0.5, PERIOD, 0.1, 300.0)  # "accepted"
+    started = time.monotonic()
+    robot.disconnect()
+    assert time.monotonic() - started < 3.0  # the issue's bound for a lost link
+    assert "stopScript" not in arm.names()
+    robot = RtdeRobot("10.0.0.5")
+    with pytest.raises(RuntimeError, match="did not answer servo_stop"):
+        robot.servo_stop(2.0)  # blocked in the client: abandoned after STOP_TIMEOUT
+    started = time.monotonic()
+    robot.disconnect()  # the client is stuck: killed at once
+    assert time.monotonic() - started < 1.0
 
 
-class _Broken(PlaybackRobot):
-    def get_actual_qd(self):
-        raise RuntimeError("RTDE receive thread stopped")
-
-
-def test_a_failing_read_keeps_the_joints_and_reports_the_link_lost():
-    previous = read_status(PlaybackRobot(HOME + 0.1), 0.0, Ur5eStatus())
-    status = read_status(_Broken(HOME), 0.1, previous)
-    assert not status.connected and "receive thread stopped" in status.error
-    np.testing.assert_allclose(status.q, HOME + 0.1)
-    fault = status.fault("10.0.0.5")
-    assert fault.kind == "disconnected" and "--resume" in str(fault)
-
-
-class _Frozen(PlaybackRobot):
-    def get_timestamp(self):
-        return 42.0
-
-
-def test_a_controller_clock_that_stops_means_a_lost_link():
-    status = read_status(_Frozen(HOME), 0.0, Ur5eStatus())
-    assert status.connected
-    status = read_status(_Frozen(HOME), 0.3, status, rtde_timeout=0.5)
-    assert status.connected
-    status = read_status(_Frozen(HOME), 0.6, status, rtde_timeout=0.5)
-    assert not status.connected and "no new RTDE data" in status.error
-
-
-@pytest.mark.parametrize("changes, kind, words", [
-    (dict(protective_stop=True, safety_mode=3), "protective_stop", "clear the stop"),
-    (dict(emergency_stop=True, safety_mode=7), "emergency_stop", "release the emergency"),
-    (dict(safety_mode=5), "safeguard_stop", "safety input"),
-    (dict(safety_mode=9), "safety_mode", "FAULT"),
-    (dict(robot_mode=3), "not_running", "POWER_OFF"),
-    (dict(program_running=False), "script_stopped", "control script"),
-    (dict(connected=False), "disconnected", "lost the RTDE connection"),
-])
-def test_every_fault_says_what_happened_and_how_to_go_on(changes, kind, words):
-    fault = _ok_status(**changes).fault("10.0.0.5")
-    assert fault.kind == kind
-    assert words in str(fault) and "lrnbv hardware --resume" in str(fault)
-
-
-# --- Safety limits --------------------------------------------------------------------------
-
-
-def test_the_sensor_must_stay_in_the_box_and_above_the_table():
-    X = kinematics.forward_kinematics(HOME)
-    p = X[:3, 3]
-    inside = _limits(workspace_lower=p - 0.01, workspace_upper=p + 0.01, min_sensor_z=p[2] - 0.1)
-    assert inside.check(HOME, HOME, np.zeros(6), HOME, PERIOD) is None
-    box = _limits(workspace_lower=p + 0.005, workspace_upper=p + 0.1, min_sensor_z=-1.0)
-    assert "outside the safety box" in box.check(HOME, HOME, np.zeros(6), HOME, PERIOD)
-    table = _limits(min_sensor_z=p[2] + 0.01)
-    assert "table clearance" in table.check(HOME, HOME, np.zeros(6), HOME, PERIOD)
-
-
-@settings(max_examples=25, deadline=None)
-@given(waypoints=st.lists(st.lists(st.floats(-2.5, 2.5), min_size=6, max_size=6), min_size=2,
-                          max_size=4),
-       phase=st.floats(0.0, PERIOD))
-def test_a_planned_trajectory_sampled_like_the_sender_never_trips_the_caps(waypoints, phase):
-    """With caps equal to the planner's limits and no jump tolerance, the backward
-    differences of a limited trapezoidal profile stay within the caps at any sampling phase."""
-    speed, acceleration = 0.5, 0.5
-    trajectory = trapezoidal_trajectory(np.array(waypoints), kinematics.VELOCITY_LIMIT * speed,
-                                        kinematics.ACCELERATION_LIMIT * acceleration, phase)
-    limits = _limits(speed=speed, acceleration=acceleration, jump=1e-9,
-                     max_tracking_error=10.0)
-    times = np.arange(0.0, trajectory.end_time() + 3 * PERIOD, PERIOD)
-    samples = [trajectory.value(min(max(t, phase), trajectory.end_time())).ravel()
-               for t in times]
-    q_previous, v_previous = samples[0], np.zeros(6)
-    for q in samples[1:]:
-        assert limits.check(q, q_previous, v_previous, q, PERIOD) is None
-        q_previous, v_previous = q, (q - q_previous) / PERIOD
+def test_a_crashed_client_is_a_lost_link(monkeypatch):
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+    robot = RtdeRobot("10.0.0.5")
+    robot._link.kill()  # as if ur_rtde had crashed the client process
+    status = read_status(robot, 0.1, ok_status())
+    assert status.fault().kind == "disconnected" and "client" in status.error
+    # ur_rtde may have uploaded its script again before crashing: a fresh client stops it
+    robot.disconnect()
+    assert arm.names()[-2:] == ["dashboard-stop", "disconnect-dashboard"]
+    assert not arm.program_running
 
 
 # --- The systems alone ----------------------------------------------------------------------
 
 
-def test_receiver_outputs_what_the_robot_reports():
-    robot = PlaybackRobot(HOME)
+def test_receiver_outputs_what_the_robot_reports_and_kicks_the_watchdog_every_read():
+    robot = RecordingRobot(HOME)
     dut = Ur5eStatusReceiver(robot, period=PERIOD)
     simulator = Simulator(dut)
     simulator.Initialize()
@@ -233,6 +192,7 @@ def test_receiver_outputs_what_the_robot_reports():
                                np.full(6, 0.004 / PERIOD))
     status = dut.GetOutputPort("status").Eval(context)
     assert status.connected and status.fault() is None and status.time == 2 * PERIOD
+    assert robot.commands.count(("kick", ())) == 4  # initialization and 0, 1, 2 periods
 
 
 def test_receiver_reports_a_lost_connection_and_holds_the_last_joints():
@@ -240,14 +200,14 @@ def test_receiver_reports_a_lost_connection_and_holds_the_last_joints():
     dut = Ur5eStatusReceiver(robot, period=PERIOD)
     simulator = Simulator(dut)
     simulator.Initialize()
-    robot.is_connected = lambda: False
+    robot.read = lambda: dc.replace(PlaybackRobot.read(robot), connected=False)
     simulator.AdvanceTo(0.5 * PERIOD)
     context = simulator.get_context()
     assert dut.GetOutputPort("status").Eval(context).fault().kind == "disconnected"
 
     def dead_link():
         raise RuntimeError("receive thread stopped")
-    robot.get_actual_q = dead_link
+    robot.read = dead_link
     simulator.AdvanceTo(1.5 * PERIOD)
     status = dut.GetOutputPort("status").Eval(context)
     assert not status.connected and "receive thread stopped" in status.error
@@ -255,11 +215,11 @@ def test_receiver_reports_a_lost_connection_and_holds_the_last_joints():
 
 
 def _sender(robot, status=None, limits=None):
-    dut = Ur5eCommandSender(robot, limits or _limits(), period=PERIOD, lookahead_time=0.1,
+    dut = Ur5eCommandSender(robot, limits or open_limits(), period=PERIOD, lookahead_time=0.1,
                             gain=300.0, stop_deceleration=2.0, robot_ip="10.0.0.5")
     simulator = Simulator(dut)
     context = simulator.get_mutable_context()
-    dut.GetInputPort("status").FixValue(context, status or _ok_status())
+    dut.GetInputPort("status").FixValue(context, status or ok_status())
     dut.GetInputPort("position").FixValue(context, HOME)
     return dut, simulator, context
 
@@ -305,14 +265,19 @@ def test_sender_refuses_a_command_far_from_the_measured_joints():
     dut, simulator, context = _sender(robot)
     simulator.Initialize()
     simulator.AdvanceTo(1.5 * PERIOD)
-    dut.GetInputPort("status").FixValue(context, _ok_status(q=HOME + 0.4))
-    with pytest.raises(RobotFault, match="from the measured joint"):
+    dut.GetInputPort("status").FixValue(context, ok_status(q=HOME + 0.4))
+    with pytest.raises(RobotFault, match="from its command") as info:
         simulator.AdvanceTo(2.5 * PERIOD)
+    assert info.value.kind == "tracking" and "does not follow the commands" in str(info.value)
+    assert "planner" not in str(info.value)  # the command is fine: the arm is not
+    assert robot.commands[-1] == ("servo_stop", (2.0,))
 
 
 @pytest.mark.parametrize("changes, kind, stops", [
     (dict(protective_stop=True, safety_mode=3), "protective_stop", True),
     (dict(emergency_stop=True, safety_mode=7), "emergency_stop", True),
+    (dict(speed_scaling=0.6), "speed_scaling", True),
+    (dict(safety_mode=2), "reduced_mode", True),
     (dict(connected=False), "disconnected", False),
 ])
 def test_sender_stops_on_a_robot_fault_and_says_so(changes, kind, stops):
@@ -320,7 +285,7 @@ def test_sender_stops_on_a_robot_fault_and_says_so(changes, kind, stops):
     dut, simulator, context = _sender(robot)
     simulator.Initialize()
     simulator.AdvanceTo(1.5 * PERIOD)
-    dut.GetInputPort("status").FixValue(context, _ok_status(**changes))
+    dut.GetInputPort("status").FixValue(context, ok_status(**changes))
     with pytest.raises(RobotFault) as info:
         simulator.AdvanceTo(2.5 * PERIOD)
     assert info.value.kind == kind and "10.0.0.5" in str(info.value)
@@ -337,6 +302,38 @@ def test_sender_reports_a_servoj_the_controller_did_not_take(monkeypatch):
     with pytest.raises(RobotFault, match="did not accept servoJ") as info:
         simulator.Initialize()
     assert info.value.kind == "script_stopped"
+
+
+def test_sender_gives_servoj_valid_constants_whatever_the_caps(monkeypatch):
+    """max_speed_fraction 1.0 caps at pi rad/s, above ur_rtde's 3.14 for servoJ's speed:
+    the sender passes servoJ's ignored speed and acceleration as valid constants."""
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+    robot = RtdeRobot("10.0.0.5")
+    _, simulator, _ = _sender(robot, limits=open_limits(speed=1.0, acceleration=1.0))
+    simulator.Initialize()
+    simulator.AdvanceTo(2.5 * PERIOD)
+    servos = [c.args for c in arm.calls if c.name == "servoJ"]
+    assert len(servos) == 3
+    assert {args[1:3] for args in servos} == {(SERVOJ_SPEED, SERVOJ_ACCELERATION)}
+    robot.disconnect()
+
+
+def test_sender_turns_ur_rtde_range_errors_into_a_fault(monkeypatch):
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+    robot = RtdeRobot("10.0.0.5")
+    dut = Ur5eCommandSender(robot, open_limits(), period=PERIOD, lookahead_time=0.25, gain=300.0,
+                            stop_deceleration=2.0, robot_ip="10.0.0.5")
+    simulator = Simulator(dut)
+    context = simulator.get_mutable_context()
+    dut.GetInputPort("status").FixValue(context, ok_status())
+    dut.GetInputPort("position").FixValue(context, HOME)
+    with pytest.raises(RobotFault, match=r"ur_rtde refused servoJ.*\[0\.03;0\.2\]") as info:
+        simulator.Initialize()
+    assert info.value.kind == "driver_error" and "servo_lookahead_time" in str(info.value)
+    assert arm.names()[-1] == "servoStop"
+    robot.disconnect()
 
 
 # --- URSim (only with URSIM_HOST) -------------------------------------------------------------
@@ -358,7 +355,7 @@ def test_ursim_reads_and_servos_the_wrist_a_little():
             robot.servo_j((q0 + (target - q0) * i / 125).tolist(), 0.5, 0.5, PERIOD, 0.1, 300)
             time.sleep(PERIOD)
         deadline = time.monotonic() + 3.0
-        while np.abs(np.array(robot.get_actual_q()) - target).max() > 2e-3:
+        while np.abs(robot.read().q - target).max() > 2e-3:
             assert time.monotonic() < deadline, "URSim did not follow the servoJ targets"
             robot.servo_j(target.tolist(), 0.5, 0.5, PERIOD, 0.1, 300)
             time.sleep(PERIOD)

@@ -15,10 +15,19 @@
  * Wiring (ST's VL53L8CX-SATEL on a Nucleo, as in ST's HelloWorld example): LPn to A3, PWREN to
  * D11, SDA/SCL to D14/D15, SPI_I2C_N to GND.
  *
- * Build with ST's "STM32duino VL53L8CX" library (2.x: `init()`) and the framing code:
+ * Build with ST's "STM32duino VL53L8CX" library (2.x: `init()`) and the framing code, with
+ * the outputs the host does not use switched off in the library and the sketch alike (they
+ * change the layout of VL53L8CX_ResultsData, so both must see the same macros):
+ *   FLAGS="-DVL53L8CX_DISABLE_AMBIENT_PER_SPAD -DVL53L8CX_DISABLE_NB_SPADS_ENABLED \
+ *       -DVL53L8CX_DISABLE_SIGNAL_PER_SPAD -DVL53L8CX_DISABLE_REFLECTANCE_PERCENT \
+ *       -DVL53L8CX_DISABLE_MOTION_INDICATOR"
  *   arduino-cli compile --fqbn <your board> --library firmware/tof_frame \
- *       firmware/vl53l8cx_tof_stream
- * (in the Arduino IDE, copy firmware/tof_frame into your sketchbook's libraries folder).
+ *       --build-property "compiler.c.extra_flags=$FLAGS" \
+ *       --build-property "compiler.cpp.extra_flags=$FLAGS" firmware/vl53l8cx_tof_stream
+ * (in the Arduino IDE, copy firmware/tof_frame into your sketchbook's libraries folder and
+ * uncomment the same macros in the library's platform configuration header). An 8x8 read-out
+ * is then about 460 bytes instead of 1.4 kB: about 10 ms on I2C at 400 kHz instead of 32 ms.
+ * Not compiled here (no Arduino toolchain on the development machine): check the build.
  */
 #include <Arduino.h>
 #include <Wire.h>
@@ -34,6 +43,18 @@
 /* Without nb_target_detected the ULD cannot mark empty zones with status 255. */
 #error "the $TOF stream needs distance, status, sigma and nb_target_detected outputs enabled"
 #endif
+#if !defined(VL53L8CX_DISABLE_AMBIENT_PER_SPAD) || !defined(VL53L8CX_DISABLE_NB_SPADS_ENABLED) || \
+    !defined(VL53L8CX_DISABLE_SIGNAL_PER_SPAD) || !defined(VL53L8CX_DISABLE_REFLECTANCE_PERCENT) || \
+    !defined(VL53L8CX_DISABLE_MOTION_INDICATOR)
+#warning "outputs the host does not use are read out too (3 times the I2C traffic); see the build"
+#endif
+#if defined(ARDUINO_ARCH_STM32)
+#include <IWatchdog.h>
+/* The library retries a NACKed I2C transfer forever: the watchdog turns that silence into a
+ * reset, which the next boot reports with an ERR line. Armed after init(), which uploads the
+ * sensor firmware in one call of about 2 s. */
+#define WATCHDOG_US 500000
+#endif
 
 #define SerialPort Serial
 #define DEV_I2C Wire
@@ -42,7 +63,9 @@
 #define LPN_PIN A3
 /* -1 if the board has no PWREN line. */
 #define PWREN_PIN 11
-/* 1 MHz (Fast-mode Plus) shortens the firmware upload in init() where the MCU supports it. */
+/* 1 MHz (Fast-mode Plus) shortens the firmware upload in init() where the MCU supports it.
+ * The library's NACK recovery re-begins the bus at the default 100 kHz (a read-out then takes
+ * longer than a frame period): restore_clock() sets this again after every frame and error. */
 #define I2C_CLOCK_HZ 400000
 
 struct Settings {
@@ -80,6 +103,12 @@ static void reply(const char *fmt, ...)
   SerialPort.print("\r\n");
 }
 
+/* Sets the I2C clock again: cheap between transfers, and undoes a NACK recovery's 100 kHz. */
+static void restore_clock(void)
+{
+  DEV_I2C.setClock(I2C_CLOCK_HZ);
+}
+
 static uint8_t max_frequency_hz(uint8_t resolution)
 {
   return resolution == VL53L8CX_RESOLUTION_8X8 ? 15 : 60;
@@ -115,6 +144,7 @@ static uint8_t configure(void)
 static void reply_configured(const char *what, uint8_t status)
 {
   if (status) {
+    restore_clock();
     reply("ERR %s: ULD status %u", what, (unsigned)status);
   } else {
     reply("OK %s", what);
@@ -217,13 +247,24 @@ static void poll_commands(void)
 static void poll_frame(void)
 {
   uint8_t ready = 0;
-  if (sensor.check_data_ready(&ready) != 0 || !ready) {
+  uint8_t status = sensor.check_data_ready(&ready);
+  if (status != 0) {
+    restore_clock();
+    static uint32_t reported_ms = 0; /* polled continuously: say it once a second */
+    if (millis() - reported_ms >= 1000) {
+      reported_ms = millis();
+      reply("ERR check_data_ready: ULD status %u", (unsigned)status);
+    }
+    return;
+  }
+  if (!ready) {
     return;
   }
   /* Latched at data-ready, not at the end of integration: the host compares t_us between
    * frames and with the arm's stop time, and the offset is the same for every frame. */
   uint32_t t_us = (uint32_t)micros();
-  uint8_t status = sensor.get_ranging_data(&results);
+  status = sensor.get_ranging_data(&results);
+  restore_clock();
   if (status != 0) {
     reply("ERR get_ranging_data: ULD status %u", (unsigned)status);
     return;
@@ -254,8 +295,16 @@ void setup()
   DEV_I2C.begin();
   DEV_I2C.setClock(I2C_CLOCK_HZ);
 
+#if defined(ARDUINO_ARCH_STM32)
+  if (IWatchdog.isReset(true)) {
+    reply("ERR i2c: the sensor stopped answering (a NACK retried without end); the board "
+          "was reset by its watchdog");
+  }
+#endif
   sensor.begin();
-  uint8_t status = sensor.init(); /* uploads the sensor firmware: a few hundred ms */
+  /* Uploads about 86 kB of sensor firmware: about 2 s at 400 kHz (the host allows 5 s). */
+  uint8_t status = sensor.init();
+  restore_clock();
   if (status != 0) {
     /* Keep saying why, so that a host that opens the port later still sees it. */
     for (;;) {
@@ -270,10 +319,16 @@ void setup()
   }
   reply_configured("BOOT", status);
   print_info();
+#if defined(ARDUINO_ARCH_STM32)
+  IWatchdog.begin(WATCHDOG_US);
+#endif
 }
 
 void loop()
 {
+#if defined(ARDUINO_ARCH_STM32)
+  IWatchdog.reload();
+#endif
   poll_commands();
   if (streaming) {
     poll_frame();

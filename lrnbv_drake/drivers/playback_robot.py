@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from lrnbv_drake.core.robot_safety import ROBOT_MODE_RUNNING, tcp_pose_from_q
+from lrnbv_drake.core.robot_safety import ROBOT_MODE_RUNNING, RobotReading, tcp_pose_from_q
 
 
 class PlaybackRobot:
@@ -26,37 +26,18 @@ class PlaybackRobot:
         self._qd = np.zeros(6)
         self._started = time.monotonic()
 
-    def get_actual_q(self) -> list[float]:
+    def read(self) -> RobotReading:
         with self._lock:
-            return self._q.tolist()
+            q, qd = self._q.copy(), self._qd.copy()
+        return RobotReading(q=q, qd=qd, tcp_pose=tcp_pose_from_q(q),
+                            controller_time=time.monotonic() - self._started,
+                            robot_mode=ROBOT_MODE_RUNNING, safety_mode=1,
+                            protective_stop=False, emergency_stop=False, connected=True,
+                            program_running=True, speed_scaling=1.0,
+                            target_speed_fraction=1.0)
 
-    def get_actual_qd(self) -> list[float]:
-        with self._lock:
-            return self._qd.tolist()
-
-    def get_actual_tcp_pose(self) -> list[float]:
-        return tcp_pose_from_q(self.get_actual_q()).tolist()
-
-    def get_timestamp(self) -> float:
-        return time.monotonic() - self._started
-
-    def get_robot_mode(self) -> int:
-        return ROBOT_MODE_RUNNING
-
-    def get_safety_mode(self) -> int:
-        return 1
-
-    def is_protective_stopped(self) -> bool:
-        return False
-
-    def is_emergency_stopped(self) -> bool:
-        return False
-
-    def is_connected(self) -> bool:
-        return True
-
-    def is_program_running(self) -> bool:
-        return True
+    def kick_watchdog(self) -> None:
+        """No controller, no watchdog."""
 
     def servo_j(self, q: Sequence[float], speed: float, acceleration: float, time: float,
                 lookahead_time: float, gain: float) -> bool:
@@ -67,6 +48,7 @@ class PlaybackRobot:
         return True
 
     def servo_stop(self, deceleration: float) -> bool:
+        """The arm is where the last command put it: the velocity drops to zero."""
         with self._lock:
             self._qd = np.zeros(6)
         return True

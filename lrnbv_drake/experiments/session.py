@@ -13,10 +13,14 @@ and runs it in real time. The output folder fills up as the episode goes:
                     replaced atomically;
 - `frames.npz`, `report.json`, `replay.html`  written at the end, also after a fault.
 
-A protective stop, an emergency stop, a lost connection, a refused command, a silent sensor or
-Ctrl-C stops the arm, saves, and ends the run with a message that says what happened and what
-to do. `resume(out_dir)` then continues the episode from wherever the arm is now (see its
-docstring for what it rebuilds).
+A stop on the controller, reduced mode, speed scaling, a lost connection, a refused command, a
+silent sensor, an unexpected error or Ctrl-C stops the arm, saves, and ends the run with a
+message that says what happened, what is on disk and what to do; once the arm may have moved
+nothing is raised (`SessionResult.moved` tells the two apart). Shutting down is bounded: the
+journal is written first, then the arm is stopped (unless the link is lost), then
+`frames.npz` and `report.json`, and only then are the drivers closed, each step bounded
+(`RtdeRobot.disconnect`). `resume(out_dir)` then continues the episode from wherever the arm
+is now (see its docstring for what it rebuilds).
 
 Dry run (`dry_run=True`): the hardware diagram with no hardware. The `PlaybackRobot` plays
 every command back as the measured joints (each command still passes the sender's checks) and
@@ -31,7 +35,8 @@ from __future__ import annotations
 import dataclasses as dc
 import json
 import logging
-import tempfile
+import signal
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -41,7 +46,7 @@ import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
 from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import Context, EventStatus
+from pydrake.systems.framework import Context
 
 from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
 from lrnbv_drake.core.robot_safety import Ur5eStatus, read_status, tcp_pose_error
@@ -52,7 +57,6 @@ from lrnbv_drake.experiments.episode import (
     EpisodeDiagram,
     EpisodeRun,
     build_episode,
-    episode_log,
     run_loop,
     write_outputs,
 )
@@ -62,6 +66,7 @@ from lrnbv_drake.experiments.recording import (
     write_atomically,
 )
 from lrnbv_drake.experiments.report import episode_report
+from lrnbv_drake.experiments.session_monitor import JOURNAL_FILE, SessionMonitor
 from lrnbv_drake.station.hardware_cell import check_hardware_config
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import safety_limits
@@ -70,16 +75,11 @@ from lrnbv_drake.station.scenario import Scenario, load_scenario, override
 _log = logging.getLogger(__name__)
 
 SESSION_FILE = "session.json"
-JOURNAL_FILE = "acquisitions.jsonl"
-MAP_FILE = "map.ot"
-#: When the diagram falls this far behind the wall clock (a long planning step), the
-#: realtime pacing restarts from now instead of racing to catch up: catching up would play
-#: the trajectory faster than planned.
-MAX_REALTIME_LAG = 0.02
 #: A controller TCP pose this far from our tool0 (m, rad) is reported before the first motion.
 TCP_WARN = (0.002, 0.01)
-#: Longest wait for a frame when checking the sensor before the first motion, seconds (a board
-#: may reset when its port is opened).
+#: Longest wait for a frame when checking the sensor before the first motion, seconds: a board
+#: may reset when its port is opened (about 1 s), and its sketch then uploads 86 kB of firmware
+#: into the sensor (about 2 s at 400 kHz) before the first ranging.
 SENSOR_CHECK_TIMEOUT = 5.0
 
 Confirm = Callable[[str], bool]
@@ -95,13 +95,17 @@ class SessionResult:
 
     Attributes:
         out_dir: the output folder.
-        termination: why it ended, as a sentence (the fault's message after a fault).
+        termination: why it ended, as a sentence (the fault's message after a fault, with
+            what is on disk).
         fault: None when the planner ended the episode; else "declined", "interrupted",
-            "sensor", "error" (an unexpected exception, raised after saving) or a
-            `RobotFault.kind`.
+            "sensor", "error" (an unexpected exception: `error`, logged with its traceback)
+            or a `RobotFault.kind`.
         log: the planner's log, recorded acquisitions first after a resume.
         resumed_from: acquisitions recorded before this run.
         realtime_resets: times the realtime pacing was restarted after a lag.
+        moved: the arm may have moved (a real run got as far as commanding it); False for a
+            dry run and for a run the operator declined.
+        error: the unexpected exception, when `fault` is "error".
     """
 
     out_dir: Path
@@ -110,55 +114,36 @@ class SessionResult:
     log: EpisodeLog
     resumed_from: int = 0
     realtime_resets: int = 0
+    moved: bool = False
+    error: Exception | None = None
 
     @property
     def n_poses(self) -> int:
         return len(self.log.acquisitions)
 
 
-class SessionMonitor:
-    """The Simulator's monitor for a hardware run: after every step it appends the planner's
-    new acquisitions to the journal and snapshots the map after each insertion, and it
-    restarts the realtime pacing when the diagram lags the wall clock."""
+class _HeldInterrupt:
+    """Holds Ctrl-C while the session saves and closes, so that one pressed then cannot leave
+    frames.npz and report.json unwritten (every step of that is bounded); `pending` says
+    whether one came. Only the main thread can hold it."""
 
-    def __init__(self, simulator: Simulator, parts: EpisodeDiagram, out_dir: Path,
-                 recorded: int) -> None:
-        self._simulator = simulator
-        self._parts = parts
-        self._map = parts.map_system.occupancy_map
-        self._journal = AcquisitionJournal(out_dir / JOURNAL_FILE)
-        self._map_path = out_dir / MAP_FILE
-        self._written = recorded
-        self._map_scans = self._map.n_scans
-        self._pace: tuple[float, float] | None = None
-        self.realtime_resets = 0
+    def __init__(self) -> None:
+        self.pending = False
+        self._previous: Any = None
+        self._holding = False
 
-    def __call__(self, root_context: Context) -> EventStatus:
-        self.record(root_context)
-        self._keep_pace(root_context)
-        return EventStatus.Succeeded()
+    def hold(self) -> None:
+        if not self._holding and threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._note)
+            self._holding = True
 
-    def record(self, root_context: Context) -> None:
-        """Writes what has not been written yet."""
-        for acquisition in episode_log(self._parts, root_context).acquisitions[self._written:]:
-            self._journal.append(acquisition)
-            self._written += 1
-        if self._map.n_scans != self._map_scans:
-            with tempfile.TemporaryDirectory() as folder:
-                scratch = Path(folder) / MAP_FILE
-                self._map.export_octomap(scratch)
-                write_atomically(self._map_path, scratch.read_bytes())
-            self._map_scans = self._map.n_scans
+    def _note(self, signum: int, frame: object) -> None:
+        self.pending = True
 
-    def _keep_pace(self, root_context: Context) -> None:
-        now, t = time.monotonic(), root_context.get_time()
-        if self._pace is not None:
-            wall0, t0 = self._pace
-            if (now - wall0) - (t - t0) <= MAX_REALTIME_LAG:
-                return
-            self._simulator.ResetStatistics()
-            self.realtime_resets += 1
-        self._pace = (now, t)
+    def release(self) -> None:
+        if self._holding:
+            signal.signal(signal.SIGINT, self._previous)
+            self._holding = False
 
 
 # --- Starting and resuming -------------------------------------------------------------------
@@ -197,10 +182,11 @@ def _preflight(scenario: Scenario, q: np.ndarray) -> None:
             f"cell (table, object, itself): either the scenario does not describe the cell, or "
             f"the arm must first be jogged to a free pose")
     limits = safety_limits(scenario, motion.X_W_base, motion.X_tool0_S)
-    reason = limits.check(q, q, np.zeros(6), q, scenario.hardware.servo_period)
-    if reason is not None:
-        raise SessionError(f"cannot start from the arm's current joints: {reason}; jog the "
-                           f"arm into the workspace first")
+    refusal = limits.check(q, q, np.zeros(6), q, scenario.hardware.servo_period)
+    if refusal is not None:
+        raise SessionError(f"cannot start from the arm's current joints: {refusal.reason}; "
+                           f"jog the arm into the workspace (and the controller's joint "
+                           f"limits) first")
 
 
 def _check_sensor(scenario: Scenario) -> None:
@@ -341,37 +327,78 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
         return SessionResult(out_dir, "the operator did not confirm: nothing moved",
                              "declined", EpisodeLog(acquisitions=list(recorded)),
                              resumed_from=len(recorded))
-    _write_session(out_dir, scenario, planner, dry_run, q_start, len(recorded))
-
+    # Connected first (the control script uploaded, nothing moves yet): a controller that
+    # refuses leaves no session behind.
     parts = build_episode(scenario, planner, meshcat, hardware=True,
                           history=EpisodeLog(acquisitions=recorded) if recorded else None)
+    try:
+        _write_session(out_dir, scenario, planner, dry_run, q_start, len(recorded))
+    except BaseException:
+        parts.cell.hardware.close()
+        raise
     monitors: list[SessionMonitor] = []
+    problems: list[str] = []  # what could not be saved, and why
+    saved = True  # frames.npz and report.json
+    held = _HeldInterrupt()
 
     def make_monitor(simulator: Simulator) -> SessionMonitor:
         monitors.append(SessionMonitor(simulator, parts, out_dir, len(recorded)))
         return monitors[-1]
 
     def on_stop(context: Context, fault: str | None) -> None:
-        """Stops the arm (unless the link is gone) and journals what is not yet on disk."""
-        if fault != "disconnected":
+        """Journals what is not yet on disk, then stops the arm (bounded) unless the sender
+        has already done so or the link is gone; from here on Ctrl-C waits."""
+        held.hold()
+        try:
+            monitors[-1].record(context)
+        except OSError as e:
+            problems.append(f"appending to {JOURNAL_FILE} failed: {e}")
+        if fault in (None, "interrupted", "sensor", "error"):
             try:
                 parts.cell.hardware.robot.servo_stop(scenario.hardware.stop_deceleration)
-            except RuntimeError as e:
+            except (RuntimeError, ValueError) as e:
                 _log.warning("stopping the arm failed: %s", e)
-        monitors[-1].record(context)
 
     try:
         run = run_loop(parts, realtime_rate=1.0, recorded=recorded, make_monitor=make_monitor,
                        on_stop=on_stop, interrupt_hint=(
                            f"the arm was stopped. Continue with `lrnbv hardware --resume "
                            f"{out_dir}`"))
+        if run.error is not None:
+            _log.error("unexpected error during the session", exc_info=run.error)
+        result = SessionResult(out_dir, run.termination, run.fault, run.log,
+                               resumed_from=len(recorded),
+                               realtime_resets=monitors[-1].realtime_resets,
+                               moved=not dry_run, error=run.error)
+        try:
+            write_outputs(out_dir, run, _report(planner, scenario, parts, run, result, dry_run),
+                          meshcat, scenario)
+        except OSError as e:
+            saved = False
+            problems.append(f"writing frames.npz and report.json failed: {e}")
     finally:
-        parts.cell.hardware.close()
-    result = SessionResult(out_dir, run.termination, run.fault, run.log,
-                           resumed_from=len(recorded),
-                           realtime_resets=monitors[-1].realtime_resets)
-    write_outputs(out_dir, run, _report(planner, scenario, parts, run, result, dry_run),
-                  meshcat, scenario)
-    if run.error is not None:
-        raise run.error
+        try:
+            parts.cell.hardware.close()
+        finally:
+            held.release()
+    if run.fault == "error" or problems:
+        result.termination = _after_the_fact(result, monitors[-1].written, problems, saved)
+    if held.pending:
+        result.termination += " (Ctrl-C while saving waited until everything was on disk)"
     return result
+
+
+def _after_the_fact(result: SessionResult, journaled: int, problems: list[str],
+                    saved: bool) -> str:
+    """The termination of a run that failed in an unexpected way or could not save
+    everything: what happened, what is on disk, what to do."""
+    what = (f"unexpected error after {result.n_poses} acquisitions (the arm "
+            f"{'may have moved' if result.moved else 'did not move'}): {result.termination}"
+            if result.fault == "error" else result.termination)
+    on_disk = (f"on disk in {result.out_dir}: {journaled} of {result.n_poses} acquisitions "
+               f"in {JOURNAL_FILE}" + (", all of them in frames.npz and report.json" if saved
+                                       else ""))
+    hint = (f"fix the cause, then continue with `lrnbv hardware --resume {result.out_dir}`"
+            if result.moved else "")
+    return ". ".join(part[0].upper() + part[1:] for part in (what, *problems, on_disk, hint)
+                     if part)

@@ -23,11 +23,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numpy as np
 from pydrake.geometry import Meshcat, SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
+from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.robot_safety import RobotInterface
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
 from lrnbv_drake.drivers.rtde_robot import RtdeRobot
@@ -50,9 +52,15 @@ from lrnbv_drake.systems.tof_serial_receiver import ToFSerialReceiver
 from lrnbv_drake.systems.ur5e_command_sender import Ur5eCommandSender
 from lrnbv_drake.systems.ur5e_status_receiver import Ur5eStatusReceiver
 
-#: Allowance for a frame's trip from the sensor to the driver (I2C read-out, USB), seconds.
-TRANSPORT_LATENCY = 0.01
-#: Extra wait for the first frame, seconds: a board may reset when its port is opened.
+#: Allowance for a frame's trip from the end of its integration to the serial driver, seconds:
+#: the VL53L8CX read-out over I2C (8x8 with every output enabled is about 1.4 kB, 9 bits a byte
+#: at 400 kHz: 32 ms; a sketch that reads only distance, status and sigma needs far less, but
+#: the host cannot tell which sketch runs), the longest `$TOF` line on the UART (1126 bytes, 10
+#: bits a byte at 460800 baud: 24 ms) and USB and the OS (4 ms).
+TRANSPORT_LATENCY = 0.032 + 0.024 + 0.004
+#: Extra wait for the first frame, seconds: a board may reset when its port is opened (about
+#: 1 s to its sketch), and the sketch's `init()` then uploads 86 kB of firmware to the sensor
+#: over I2C (about 2 s at 400 kHz) before the first ranging (docs/serial-protocol.md).
 BOOT_ALLOWANCE = 5.0
 
 
@@ -67,10 +75,11 @@ def check_hardware_config(scenario: Scenario, *, addresses: bool = True) -> None
         raise ScenarioError(f"field 'hardware.sensor_driver': expected one of "
                             f"{SENSOR_DRIVERS}, got {hw.sensor_driver!r}")
     for name in ("status_period", "servo_period", "stop_deceleration", "max_tracking_error",
-                 "rtde_timeout", "still_speed", "sensor_timeout"):
+                 "rtde_timeout", "still_speed", "sensor_timeout", "watchdog_hold"):
         if not getattr(hw, name) > 0:
             raise ScenarioError(f"field 'hardware.{name}': must be > 0, got {getattr(hw, name)}")
-    for name in ("command_jump_tolerance", "workspace_margin", "min_table_clearance"):
+    for name in ("command_jump_tolerance", "workspace_margin", "min_table_clearance",
+                 "watchdog_frequency"):
         if not getattr(hw, name) >= 0:
             raise ScenarioError(f"field 'hardware.{name}': must be >= 0, got "
                                 f"{getattr(hw, name)}")
@@ -80,17 +89,36 @@ def check_hardware_config(scenario: Scenario, *, addresses: bool = True) -> None
     if not 100 <= hw.servo_gain <= 2000:
         raise ScenarioError(f"field 'hardware.servo_gain': servoJ takes 100 to 2000, got "
                             f"{hw.servo_gain}")
+    _check_joint_limits(hw.joint_lower, hw.joint_upper)
     for planned, cap in (("speed_fraction", "max_speed_fraction"),
                          ("acceleration_fraction", "max_acceleration_fraction")):
         p, c = getattr(scenario.robot, planned), getattr(hw, cap)
         if not 0 < c <= 1:
-            raise ScenarioError(f"field 'hardware.{cap}': must be in (0, 1], got {c}")
+            raise ScenarioError(f"field 'hardware.{cap}': must be in (0, 1] (a fraction of the "
+                                f"UR5e's pi rad/s and pi rad/s^2), got {c}")
         if p > c:
             raise ScenarioError(f"field 'robot.{planned}' ({p}) is above 'hardware.{cap}' "
                                 f"({c}): the command sender would refuse the planned motions")
     if addresses:
         _check_robot_ip(scenario)
         _check_serial_port(scenario)
+
+
+def _check_joint_limits(lower: list[float], upper: list[float]) -> None:
+    """The controller's joint limits: six each, lower below upper, within the model's (the
+    pendant cannot allow more than the arm does)."""
+    for name, values in (("joint_lower", lower), ("joint_upper", upper)):
+        if len(values) != 6 or not np.all(np.isfinite(values)):
+            raise ScenarioError(f"field 'hardware.{name}': expected 6 finite angles in "
+                                f"radians, got {values}")
+    lo, hi = np.asarray(lower, float), np.asarray(upper, float)
+    if not np.all(lo < hi):
+        raise ScenarioError(f"fields 'hardware.joint_lower' {lower} and 'hardware.joint_upper' "
+                            f"{upper}: every lower limit must be below its upper one")
+    if np.any(lo < kinematics.JOINT_LOWER) or np.any(hi > kinematics.JOINT_UPPER):
+        raise ScenarioError(f"fields 'hardware.joint_lower/upper': the controller's limits "
+                            f"must lie within the UR5e's {kinematics.JOINT_LOWER.tolist()} .. "
+                            f"{kinematics.JOINT_UPPER.tolist()}")
 
 
 def _check_robot_ip(scenario: Scenario) -> None:
@@ -112,7 +140,8 @@ def make_robot(scenario: Scenario) -> RobotInterface:
         return PlaybackRobot(scenario.robot.initial_position)
     _check_robot_ip(scenario)
     return RtdeRobot(scenario.robot.robot_ip, frequency=hw.rtde_frequency,
-                     upper_range_registers=hw.upper_range_registers)
+                     upper_range_registers=hw.upper_range_registers,
+                     watchdog_frequency=hw.watchdog_frequency, watchdog_hold=hw.watchdog_hold)
 
 
 def _open_sensor(scenario: Scenario, robot: RobotInterface,
@@ -126,7 +155,7 @@ def _open_sensor(scenario: Scenario, robot: RobotInterface,
         return driver
     driver = ToFSerialReader("loop://", s.baud).start()
     to_close.append(driver.close)
-    board = SimulatedToFBoard(scenario, robot.get_actual_q, driver).start()
+    board = SimulatedToFBoard(scenario, lambda: robot.read().q, driver).start()
     to_close.append(board.close)
     return driver
 

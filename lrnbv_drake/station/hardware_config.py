@@ -11,6 +11,8 @@ the ones docs/hardware.md argues for; a scenario file overrides them like any ot
 # postponed annotations would turn into strings.
 import dataclasses as dc
 
+from lrnbv_drake.core import kinematics
+
 #: The robot drivers `HardwareConfig.robot_driver` names.
 ROBOT_DRIVERS = ("rtde", "playback")
 #: The sensor drivers `HardwareConfig.sensor_driver` names.
@@ -41,19 +43,39 @@ class HardwareConfig:
     # and proportional gain in [100, 2000].
     servo_lookahead_time: float = 0.1
     servo_gain: float = 300.0
-    # Deceleration of the stop a refused command or a fault orders, rad/s^2.
+    # Deceleration of the stop a refused command or a fault orders, m/s^2 at the tool: ur_rtde's
+    # servoStop(a) runs the script's stopl(a), a tool-space stop (not a joint one).
     stop_deceleration: float = 2.0
+    # The control script's RTDE watchdog, Hz: the controller stops the script (and the arm)
+    # when the client has not written for 1/f s. The diagram writes every status_period
+    # (8 ms, 12 times per 0.1 s); a dead client stops the arm 0.1 s later. 0 turns it off.
+    watchdog_frequency: float = 10.0
+    # While the diagram is held (a planning step: 0.06 to 0.12 s an iteration, under a second
+    # with the motion planning), the driver keeps the watchdog fed for at most this long,
+    # seconds; a diagram stalled longer lets the watchdog stop the script.
+    watchdog_hold: float = 10.0
+    # The controller's configured joint position limits (pendant: Safety > Joint Limits),
+    # radians, which every command must stay within; the model's by default (+-2 pi, elbow
+    # +-pi), which is wider than any real cell's configuration.
+    joint_lower: list[float] = dc.field(
+        default_factory=lambda: kinematics.JOINT_LOWER.tolist())
+    joint_upper: list[float] = dc.field(
+        default_factory=lambda: kinematics.JOINT_UPPER.tolist())
     # Caps on the commanded joint speed and acceleration, as fractions of the UR5e limits
-    # (pi rad/s, pi rad/s^2); they must allow robot.speed_fraction and acceleration_fraction.
+    # (pi rad/s, pi rad/s^2), in (0, 1]; they must allow robot.speed_fraction and
+    # acceleration_fraction. servoJ is not given them (it ignores speed and acceleration).
     max_speed_fraction: float = 0.6
     max_acceleration_fraction: float = 0.6
     # A command may step this much further than the caps allow, radians: a motion starts from
     # the last command when the measured joints are within 5 mrad of it (AcquisitionLoop), else
     # from the measured joints, which differ from the last command by the servo's residual.
     command_jump_tolerance: float = 0.002
-    # Largest distance between a command and the measured joints, radians (servoJ lags a
-    # moving command by about speed x lookahead time).
-    max_tracking_error: float = 0.3
+    # Largest distance between a command and the measured joints beyond the servo's lag,
+    # radians. servoJ lags a moving command by about its speed x lookahead time; the check
+    # allows the command's speed x (1.5 x lookahead + both periods + one RTDE package) plus
+    # this, which covers the lag's tail after a stop (lookahead^2 x acceleration, 0.02 rad).
+    # At rest that is 0.05 rad, 4 cm at the UR5e's 0.85 m reach.
+    max_tracking_error: float = 0.05
     # Along a motion the sensor origin may leave cell.workspace by this much, metres.
     workspace_margin: float = 0.05
     # The sensor origin must stay this far above the table top, metres.

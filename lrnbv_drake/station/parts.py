@@ -148,15 +148,20 @@ def container_catalogue(scenario: Scenario) -> list[Container]:
 def safety_limits(scenario: Scenario, X_W_base: np.ndarray, X_tool0_S: np.ndarray
                   ) -> SafetyLimits:
     """The command checks for this scenario's cell, whose controller `base` frame is X_W_base
-    (4x4) and whose sensor sits at X_tool0_S (4x4) on the flange."""
+    (4x4) and whose sensor sits at X_tool0_S (4x4) on the flange.
+
+    The tracking lag is the servo's (about its lookahead time, taken 1.5 times as it is not
+    measured on a real arm) plus the age of what is compared: the reading (one status period
+    and one RTDE package, 8 ms at CB3's 125 Hz) and the command (one servo period)."""
     hw, cell = scenario.hardware, scenario.cell
     margin = hw.workspace_margin
     return SafetyLimits(
-        joint_lower=np.asarray(kinematics.JOINT_LOWER),
-        joint_upper=np.asarray(kinematics.JOINT_UPPER),
+        joint_lower=np.asarray(hw.joint_lower, float),
+        joint_upper=np.asarray(hw.joint_upper, float),
         max_velocity=kinematics.VELOCITY_LIMIT * hw.max_speed_fraction,
         max_acceleration=kinematics.ACCELERATION_LIMIT * hw.max_acceleration_fraction,
         jump_tolerance=hw.command_jump_tolerance,
+        tracking_lag=1.5 * hw.servo_lookahead_time + hw.status_period + hw.servo_period + 0.008,
         max_tracking_error=hw.max_tracking_error,
         X_W_base=np.asarray(X_W_base, float),
         X_tool0_S=np.asarray(X_tool0_S, float),

@@ -11,18 +11,21 @@ moveJ to each held position would start only once the whole trajectory has been 
 would cut straight to the last waypoint of a multi-segment path, and could not be stopped
 part way by a blocking call.
 
-Before each command the sender checks it (`SafetyLimits`): joint limits, the sensor origin in
-the workspace box and above the table, joint speed and acceleration caps on the step from the
-previous command, and the distance to the measured joints. It also checks the status the
-receiver read: protective stop, emergency stop, safeguard stop, a robot that is not running,
-a stopped control script or a lost connection. Any of these stops the arm (when the
-controller still listens) and raises `RobotFault`, whose message says what happened and what
-to do; the Simulator passes the exception on to whoever called `AdvanceTo`.
+Before each command the sender checks it (`SafetyLimits`): the controller's joint limits, the
+sensor origin in the workspace box and above the table, joint speed and acceleration caps on
+the step from the previous command, and the distance to the measured joints (the servo's lag
+at the command's speed plus a small residual). It also checks the status the receiver read:
+stops, reduced mode, speed scaling, a robot that is not running, a stopped control script or
+a lost connection. Any of these stops the arm (unless the link is lost) and raises
+`RobotFault`, whose message says what happened and what to do; so do ur_rtde's own errors
+(an argument out of its range, a dead client). The Simulator passes the exception on to
+whoever called `AdvanceTo`.
 """
 
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -38,6 +41,25 @@ from lrnbv_drake.core.robot_safety import (
 )
 
 _log = logging.getLogger(__name__)
+
+#: servoJ's speed (rad/s) and acceleration (rad/s^2): the script ignores both, but ur_rtde
+#: refuses values outside [0, 3.14] and [0, 40], so these are ur_rtde's own example values.
+SERVOJ_SPEED = 0.5
+SERVOJ_ACCELERATION = 0.5
+#: How long a stopped script or a refused servoJ waits for the status to show why, seconds:
+#: ur_rtde's control interface can hear that the script stopped before its receive interface
+#: gets the package with the stop (a few packages; 0.05 s was too short on a loaded machine).
+CAUSE_WAIT = 0.25
+#: What to do after a refused command, by `Refusal.kind`.
+REFUSAL_ADVICE = {
+    "refused": ("The planner's trajectories keep the caps, so either a hardware.* limit is "
+                "narrower than what the planner was allowed (joint limits, workspace, table "
+                "clearance, speed fractions), or the diagram fell behind and raced: check the "
+                "scenario against the cell"),
+    "tracking": ("The arm does not follow the commands as servoJ should: look for a stop or "
+                 "speed scaling on the pendant, another program moving the arm, or a start "
+                 "pose the arm is not at"),
+}
 
 
 class Ur5eCommandSender(LeafSystem):
@@ -57,7 +79,8 @@ class Ur5eCommandSender(LeafSystem):
     A periodic discrete update at the same times stores the command just sent and its speed:
     the next publish measures its step against them (an initialization event starts them at
     the measured joints, at rest). A fault or a refused command stops the arm with
-    servoStop(stop_deceleration) when the controller still listens, and raises `RobotFault`.
+    servoStop(stop_deceleration) (m/s^2 at the tool) unless the link is lost, and raises
+    `RobotFault`.
     """
 
     def __init__(self, robot: RobotInterface, limits: SafetyLimits, *, period: float = 0.008,
@@ -71,10 +94,6 @@ class Ur5eCommandSender(LeafSystem):
         self._gain = gain
         self._stop_deceleration = stop_deceleration
         self._robot_ip = robot_ip
-        # servoJ ignores speed and acceleration, but ur_rtde checks them against [0, 3.14]
-        # and [0, 40]: pass the caps.
-        self._speed = float(np.max(limits.max_velocity))
-        self._acceleration = float(np.max(limits.max_acceleration))
         self._position_port = self.DeclareVectorInputPort("position", 6)
         self._status_port = self.DeclareAbstractInputPort(
             "status", AbstractValue.Make(Ur5eStatus()))
@@ -96,36 +115,63 @@ class Ur5eCommandSender(LeafSystem):
     def _Send(self, context: Context) -> None:
         status: Ur5eStatus = self._status_port.Eval(context)
         fault = status.fault(self._robot_ip)
+        if fault is not None and fault.kind == "script_stopped":
+            fault = self._cause(context.get_time(), status)
         if fault is not None:
             self._stop(listening=fault.kind != "disconnected")
             raise fault
         q = np.asarray(self._position_port.Eval(context), float)
         sent = context.get_discrete_state(self._sent_index).value()
-        reason = self._limits.check(q, sent[:6], sent[6:], status.q, self._period)
-        if reason is not None:
+        refusal = self._limits.check(q, sent[:6], sent[6:],
+                                     status.q if status.current else None, self._period)
+        if refusal is not None:
             self._stop(listening=True)
-            raise RobotFault("refused", (
-                f"refused the command at t = {context.get_time():.3f} s: {reason}. The arm "
-                f"was stopped. The planner should never produce such a command: check the "
-                f"scenario (workspace, table height, speed fractions) against the cell, and "
-                f"hardware.* caps against the planner's, before resuming"))
-        if not self._robot.servo_j(q.tolist(), self._speed, self._acceleration, self._period,
-                                   self._lookahead_time, self._gain):
-            # Refused since the status was read (a stop just happened?): read it again for the
-            # specific cause.
-            fault = read_status(self._robot, context.get_time(), status).fault(self._robot_ip)
+            raise RobotFault(refusal.kind, (
+                f"refused the command at t = {context.get_time():.3f} s: {refusal.reason}. "
+                f"The arm was stopped. {REFUSAL_ADVICE[refusal.kind]}, {RESUME_HINT}"))
+        try:
+            accepted = self._robot.servo_j(q.tolist(), SERVOJ_SPEED, SERVOJ_ACCELERATION,
+                                           self._period, self._lookahead_time, self._gain)
+        except ValueError as e:  # ur_rtde's range checks
+            self._stop(listening=True)
+            raise RobotFault("driver_error", (
+                f"ur_rtde refused servoJ at t = {context.get_time():.3f} s: {e}. The arm was "
+                f"stopped. Check hardware.servo_period, servo_lookahead_time and servo_gain "
+                f"against ur_rtde's ranges, {RESUME_HINT}")) from e
+        except RuntimeError as e:  # the client failed: the status names the cause
+            fault = self._cause(context.get_time(), status)
+            self._stop(listening=fault is None or fault.kind != "disconnected")
+            raise fault or RobotFault("driver_error", (
+                f"servoJ to {self._robot_ip} failed at t = {context.get_time():.3f} s: {e}. "
+                f"Check the pendant, {RESUME_HINT}")) from e
+        if not accepted:  # refused since the status was read: a stop just happened?
+            fault = self._cause(context.get_time(), status)
+            self._stop(listening=fault is None or fault.kind != "disconnected")
             if fault is not None and fault.kind != "script_stopped":
                 raise fault
             raise RobotFault("script_stopped", (
                 f"{self._robot_ip} did not accept servoJ: ur_rtde's control script is not "
                 f"executing commands. Check the pendant, {RESUME_HINT}"))
 
+    def _cause(self, time_now: float, status: Ur5eStatus) -> RobotFault | None:
+        """The fault behind a stopped script or a servoJ that failed: the status read again
+        until it names one other than the stopped script, for at most CAUSE_WAIT."""
+        deadline = time.monotonic() + CAUSE_WAIT
+        while True:
+            status = read_status(self._robot, time_now, status)
+            fault = status.fault(self._robot_ip)
+            if (fault is not None and fault.kind != "script_stopped") \
+                    or time.monotonic() > deadline:
+                return fault
+            time.sleep(0.002)
+
     def _stop(self, listening: bool) -> None:
         """Orders a stop; a stop that cannot be delivered is logged, not raised, so that the
-        fault that caused it is what the caller sees."""
+        fault that caused it is what the caller sees. servoStop's deceleration is the tool's,
+        m/s^2 (the script runs stopl)."""
         if not listening:
             return
         try:
             self._robot.servo_stop(self._stop_deceleration)
-        except RuntimeError as e:
+        except (RuntimeError, ValueError) as e:
             _log.warning("servoStop on %s failed: %s", self._robot_ip, e)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, LeafSystem, State
 
@@ -23,6 +25,11 @@ class Ur5eStatusReceiver(LeafSystem):
     controller (`read_status`) into state; the outputs are that state. `position_measured` (6)
     and `velocity_estimated` (6) are the actual joints and speeds; `status` is the whole
     `Ur5eStatus`. The receiver reports faults; the command sender acts on them.
+
+    Each read also kicks the control script's RTDE watchdog (`RobotInterface.kick_watchdog`):
+    the reads run at rest and in motion alike, so the watchdog hears from the diagram as long
+    as it runs, and stops the script when it does not (the driver covers a held diagram, such
+    as a planning step, for `hardware.watchdog_hold`).
     """
 
     def __init__(self, robot: RobotInterface, period: float = 0.008,
@@ -43,6 +50,8 @@ class Ur5eStatusReceiver(LeafSystem):
         status = read_status(self._robot, context.get_time(),
                              context.get_abstract_state(self._status_index).get_value(),
                              self._rtde_timeout)
+        with contextlib.suppress(RuntimeError):  # the client is gone: the next read says so
+            self._robot.kick_watchdog()
         state.get_mutable_abstract_state(self._status_index).set_value(status)
         discrete = state.get_mutable_discrete_state()
         discrete.set_value(self._q_index, status.q)

@@ -41,6 +41,10 @@ BIT_POWER_ON, BIT_PROGRAM_RUNNING = 0, 1
 JOINT_RUNNING, JOINT_POWER_OFF, JOINT_IDLE = 253, 238, 255
 
 FAULTS = ("protective_stop", "emergency_stop", "not_in_remote_control")
+#: A cycle this late means the emulator's process was starved of CPU (a real controller's
+#: real-time loop never is): the watchdog does not count the gap, in which the client's
+#: writes waited in the socket, unread.
+STARVED = 0.02
 DEFAULT_VERSION = (5, 15, 1, 1203)
 
 
@@ -189,6 +193,9 @@ class Controller:
         """One controller cycle: the script's loop pass, the watchdog, the arm, the outputs."""
         now = self.clock() if now is None else now
         dt, self.now = now - self.now, now
+        if self.watchdog is not None and dt > STARVED:
+            self.watchdog["last_kick"] += dt
+            self.record.add("starved", {"seconds": dt})
         if self.program is not None and self.runtime_state == PLAYING:
             if not self.program.cycle():
                 self.stop_program("script ended (stop script command)")

@@ -22,6 +22,7 @@ LISTS = (
     "rtde_sessions",    # {t, peer, event, ...}: connects, recipes, start, pause, closes
     "text_messages",    # {t, peer, message}: text packages from clients
     "links",            # {t, event: freeze|unfreeze|reset}
+    "starved",          # {t, seconds}: cycles late by more than STARVED (CPU starvation)
 )
 
 
