@@ -32,6 +32,7 @@ from ur_emulator.sessions import (
 )
 
 from lrnbv_drake.cli.main import main
+from lrnbv_drake.station.hardware_config import HardwareConfig
 
 pytest.importorskip("rtde_control")
 
@@ -94,7 +95,7 @@ def test_a_fault_mid_motion_stops_saves_explains_and_resumes(fault, tmp_path, ca
         if kind == "disconnected":  # noticed after rtde_timeout, then shut down
             assert ended - trigger.at < RTDE_TIMEOUT + 3.0
         assert max(servoj_times(record)) < trigger.at + NOTICED
-        assert record["watchdog"][0]["min_frequency"] == 10.0
+        assert record["watchdog"][0]["min_frequency"] == HardwareConfig().watchdog_frequency
         assert on_disk(out) == (1, 1, 1)  # the acquisition before the fault, everywhere
         recover(emu)
         assert main(["hardware", "--resume", str(out), "--yes"]) == 0

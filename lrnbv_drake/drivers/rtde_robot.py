@@ -24,11 +24,12 @@ from lrnbv_drake.core.robot_safety import RobotConnectionError, RobotFault, Robo
 
 #: Longest waits for the client, seconds. Connecting uploads a 42 kB script and checks the
 #: dashboard; a reading or a servoJ answers in well under a millisecond on a live link (its
-#: getters return the last package, servoJ only writes registers); servoStop waits while the
-#: script's stopl decelerates the tool; closing takes at most stopScript plus the disconnects
+#: getters return the last package, servoJ only writes registers), so a second only covers a
+#: client the OS did not schedule (a busy PC); servoStop waits while the script's stopl
+#: decelerates the tool; closing takes at most stopScript plus the disconnects
 #: (rtde_client.CLOSE_STEP_TIMEOUT each), after which the client is killed.
 CONNECT_TIMEOUT = 30.0
-CALL_TIMEOUT = 0.5
+CALL_TIMEOUT = 1.0
 STOP_TIMEOUT = 2.0
 CLOSE_TIMEOUT = 2.5
 
@@ -152,7 +153,7 @@ class RtdeRobot:
 
     def __init__(self, robot_ip: str, *, frequency: float = -1.0,
                  upper_range_registers: bool = False, control: bool = True,
-                 watchdog_frequency: float = 10.0, watchdog_hold: float = 10.0) -> None:
+                 watchdog_frequency: float = 5.0, watchdog_hold: float = 10.0) -> None:
         self.robot_ip = robot_ip
         self.control = control
         self._link = spawn_client()

@@ -47,9 +47,11 @@ class HardwareConfig:
     # servoStop(a) runs the script's stopl(a), a tool-space stop (not a joint one).
     stop_deceleration: float = 2.0
     # The control script's RTDE watchdog, Hz: the controller stops the script (and the arm)
-    # when the client has not written for 1/f s. The diagram writes every status_period
-    # (8 ms, 12 times per 0.1 s); a dead client stops the arm 0.1 s later. 0 turns it off.
-    watchdog_frequency: float = 10.0
+    # when the client has not written for 1/f s. A dead client stops the arm 0.2 s later; the
+    # diagram writes every status_period (8 ms, 25 times per 0.2 s), and 0.2 s is twice the
+    # longest scheduling gap seen with several sessions sharing two cores, which made 10 Hz
+    # trip spuriously (docs/hardware.md, 2). 0 turns it off.
+    watchdog_frequency: float = 5.0
     # While the diagram is held (a planning step: 0.06 to 0.12 s an iteration, under a second
     # with the motion planning), the driver keeps the watchdog fed for at most this long,
     # seconds; a diagram stalled longer lets the watchdog stop the script.

@@ -28,9 +28,9 @@ hardware: {sensor_driver: simulated, max_speed_fraction: 1.0}
 #: The commanded target this far (rad) from the start pose means the arm is on its way.
 MOVING = 0.02
 #: From a fault on the controller to the session's last servoJ, seconds: the status read that
-#: sees it (every 8 ms) after the package that carries it (2 ms), with slack for a loaded
-#: machine.
-NOTICED = 0.25
+#: sees it (every 8 ms) after the package that carries it (2 ms), and up to CAUSE_WAIT (0.25 s)
+#: for the status to name it; `hardware.rtde_timeout` (0.5 s) leaves room for a loaded machine.
+NOTICED = 0.5
 
 
 @functools.cache
