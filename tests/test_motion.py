@@ -90,3 +90,46 @@ def test_sensor_pose_matches_drake_kinematics(planner):
         X_drake = dut.GetOutputPort("tof.pose").Eval(context).GetAsMatrix4()
         np.testing.assert_allclose(planner.sensor_pose(q), X_drake, atol=1e-9)
         np.testing.assert_allclose(dut.GetOutputPort("ur5e.position_measured").Eval(context), q)
+
+
+def _farthest_outside(planner, trajectory, n=400):
+    """How far (m) the sensor gets outside the workspace along a trajectory (< 0: inside)."""
+    t = np.linspace(trajectory.start_time(), trajectory.end_time(), n)
+    q = np.array([trajectory.value(ti).ravel() for ti in t])
+    p = planner.sensor_pose(q)[:, :3, 3]
+    lower, upper = planner.workspace
+    return max(np.max(lower - p), np.max(p - upper))
+
+
+# Starts and targets from a random walk of plans in which the straight (or via-home) joint
+# path left the workspace by 0.09 to 0.26 m: the hardware's safety box, 0.05 m wider, refused
+# such a command mid-motion in a dry run.
+@pytest.mark.parametrize(("q_start", "position"), [
+    ([-1.585, -0.415, -1.186, -2.723, 1.127, 0.81], [0.143, -0.584, 0.547]),
+    ([-3.711, -3.159, 1.64, -3.362, 2.262, -1.831], [0.028, 0.199, 0.376]),
+    ([-1.587, -1.988, -1.278, -2.472, 1.093, -3.414], [0.467, 0.396, 0.619]),
+])
+def test_a_planned_path_keeps_the_sensor_in_the_workspace_or_is_refused(planner, q_start,
+                                                                       position):
+    target = look_at(position, [0.5, 0.0, 0.05])
+    plan = planner.plan(np.array(q_start), target)
+    if plan.ok:
+        assert _farthest_outside(planner, plan.trajectory) <= 0.0
+    else:
+        assert plan.failure is MotionFailure.PATH_OUTSIDE_WORKSPACE
+        assert "outside the workspace" in plan.reason
+
+
+def test_path_in_workspace_sees_a_swing_between_two_inside_poses(planner):
+    # The base joint turned the long way round, from -1.2 to 2 pi - 0.5 rad: both ends in
+    # front of the robot (x > 0), the middle (pi) behind it.
+    a = kinematics.HOME.copy()
+    a[0] = -1.2
+    b = a.copy()
+    b[0] = 2 * np.pi - 0.5
+    ends = planner.sensor_pose(np.array([a, b]))[:, :3, 3]
+    lower, upper = planner.workspace
+    mid = planner.sensor_pose((a + b) / 2)[:3, 3]
+    assert np.all((ends >= lower) & (ends <= upper)) and mid[0] < lower[0]  # the premise
+    assert not planner.path_in_workspace(np.array([a, b]))
+    assert planner.path_in_workspace(np.array([a, a]))

@@ -28,6 +28,7 @@ class MotionFailure(enum.Enum):
     UNREACHABLE = "unreachable"
     TARGET_IN_COLLISION = "target_in_collision"
     PATH_IN_COLLISION = "path_in_collision"
+    PATH_OUTSIDE_WORKSPACE = "path_outside_workspace"
 
 
 @dc.dataclass

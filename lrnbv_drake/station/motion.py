@@ -2,8 +2,9 @@
 
 For a target sensor pose the planner takes every IK branch, nearest to the current joints first,
 and keeps the first one whose configuration and straight joint-space path are collision free
-(robot against table, object and itself, with padding). If no straight path is free it tries
-the path through the home configuration. The result is a typed `MotionPlan`: a failure says
+(robot against table, object and itself, with padding) and keep the sensor inside the
+workspace all along (the hardware's safety limits refuse any command that leaves it). If no
+straight path qualifies it tries the path through the home configuration. The result is a typed `MotionPlan`: a failure says
 why and never raises, so an episode can try another viewpoint.
 
 Trajectories are synchronised trapezoidal velocity profiles through the waypoints (stopping at
@@ -98,6 +99,7 @@ class MotionPlanner:
         self.max_acceleration = kinematics.ACCELERATION_LIMIT * \
             scenario.robot.acceleration_fraction
         self.home = kinematics.HOME.copy()
+        self._path_step = scenario.robot.collision_check_step
 
     def sensor_pose(self, q: np.ndarray) -> np.ndarray:
         """X_WS (4x4) for joint positions q, from the analytic forward kinematics."""
@@ -142,13 +144,36 @@ class MotionPlanner:
             return MotionPlan(MotionFailure.TARGET_IN_COLLISION,
                               f"all {len(candidates)} IK solutions collide with the cell or "
                               f"the robot itself")
+        leaves_workspace = 0
         for q in free:
             for waypoints in ([q_current, q], [q_current, self.home, q]):
-                if all(self._checker.CheckEdgeCollisionFree(a, b)
-                       for a, b in itertools.pairwise(waypoints)):
-                    trajectory = trapezoidal_trajectory(np.array(waypoints), self.max_velocity,
-                                                        self.max_acceleration, start_time)
-                    return MotionPlan(None, "ok", q_target=q, trajectory=trajectory)
+                if not all(self._checker.CheckEdgeCollisionFree(a, b)
+                           for a, b in itertools.pairwise(waypoints)):
+                    continue
+                if not self.path_in_workspace(np.array(waypoints)):
+                    leaves_workspace += 1
+                    continue
+                trajectory = trapezoidal_trajectory(np.array(waypoints), self.max_velocity,
+                                                    self.max_acceleration, start_time)
+                return MotionPlan(None, "ok", q_target=q, trajectory=trajectory)
+        if leaves_workspace:
+            return MotionPlan(MotionFailure.PATH_OUTSIDE_WORKSPACE,
+                              f"{len(free)} collision-free IK solutions, but every "
+                              f"collision-free joint-space path to them (direct or through "
+                              f"home) takes the sensor outside the workspace")
         return MotionPlan(MotionFailure.PATH_IN_COLLISION,
                           f"{len(free)} collision-free IK solutions, but every joint-space "
                           f"path to them (direct or through home) collides")
+
+    def path_in_workspace(self, waypoints: np.ndarray) -> bool:
+        """Whether the sensor stays inside the workspace along the straight joint-space
+        segments through `waypoints` (n, 6), sampled every `collision_check_step` rad of the
+        largest joint motion (the same resolution as the collision checks)."""
+        lower, upper = self.workspace
+        for a, b in itertools.pairwise(np.asarray(waypoints, float)):
+            n = max(2, int(np.ceil(np.max(np.abs(b - a)) / self._path_step)) + 1)
+            s = np.linspace(0.0, 1.0, n)[:, None]
+            p = self.sensor_pose(a + s * (b - a))[:, :3, 3]
+            if np.any(p < lower) or np.any(p > upper):
+                return False
+        return True
