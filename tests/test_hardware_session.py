@@ -349,3 +349,20 @@ def test_the_cli_rejects_flag_combinations_it_cannot_run(argv, words, capsys):
 def test_the_cli_resumes_nothing_from_an_empty_folder(tmp_path, capsys):
     assert main(["hardware", "--resume", str(tmp_path), "--yes"]) == 2
     assert "nothing to resume" in capsys.readouterr().err
+
+
+def test_a_finished_session_is_not_resumed(tmp_path, capsys):
+    """A dry run whose planner stopped by itself (the pose cap) is finished: resuming it says
+    so and plans nothing, where it used to go on planning past the stop."""
+    def never(text):
+        raise AssertionError("a dry run asked to move the robot")
+    out = tmp_path / "session"
+    first = run_session(load_scenario(data="max_poses: 1"), "heu", out, confirm=never,
+                        dry_run=True)
+    assert first.fault is None and first.n_poses == 1
+    assert json.loads((out / SESSION_FILE).read_text())["finished"] == first.termination
+    with pytest.raises(SessionError, match=r"is finished .*nothing to resume"):
+        resume(out, confirm=never)
+    assert main(["hardware", "--resume", str(out), "--yes"]) == 2
+    assert "is finished" in capsys.readouterr().err
+    assert len(AcquisitionJournal(out / JOURNAL_FILE).load()) == 1

@@ -222,6 +222,15 @@ def _write_session(out_dir: Path, scenario: Scenario, planner: str, dry_run: boo
     write_atomically(path, json.dumps(session, indent=2))
 
 
+def _record_finish(out_dir: Path, termination: str) -> None:
+    """Marks the session finished (its planner stopped by itself, everything saved), so that
+    `resume` says so instead of planning past the stop."""
+    path = out_dir / SESSION_FILE
+    session = json.loads(path.read_text())
+    session["finished"] = termination
+    write_atomically(path, json.dumps(session, indent=2))
+
+
 def _report(planner: str, scenario: Scenario, parts: EpisodeDiagram, run: EpisodeRun,
             result: SessionResult, dry_run: bool) -> dict[str, Any]:
     report = episode_report(planner, scenario, run.log, termination=result.termination,
@@ -282,6 +291,9 @@ def resume(out_dir: str | Path, *, confirm: Confirm, meshcat: Meshcat | None = N
     HEU, and for LR-NBV a valid one that an uninterrupted run would not have reproduced
     exactly. Diagram time carries on from the last recorded acquisition.
 
+    A finished session (its planner stopped by itself and everything was saved) is not
+    resumed: `SessionError` says so.
+
     Args:
         out_dir: a folder `run_session` wrote.
         confirm, meshcat: as for `run_session` (a dry-run session resumes as a dry run).
@@ -292,6 +304,11 @@ def resume(out_dir: str | Path, *, confirm: Confirm, meshcat: Meshcat | None = N
     if not path.exists():
         raise SessionError(f"{out_dir} holds no {SESSION_FILE}: nothing to resume")
     session = json.loads(path.read_text())
+    if session.get("finished"):
+        raise SessionError(f"the session in {out_dir} is finished ({session['finished']}): "
+                           f"nothing to resume; its box and poses are in "
+                           f"{out_dir / 'report.json'}. Start a new session in another folder "
+                           f"to measure again")
     scenario = load_scenario(data=session["scenario"])
     if robot_ip is not None:
         scenario = override(scenario, {"robot": {"robot_ip": robot_ip}})
@@ -381,6 +398,11 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
             parts.cell.hardware.close()
         finally:
             held.release()
+    if run.fault is None and not problems:
+        try:
+            _record_finish(out_dir, result.termination)
+        except OSError as e:
+            problems.append(f"marking {SESSION_FILE} finished failed: {e}")
     if run.fault == "error" or problems:
         result.termination = _after_the_fact(result, monitors[-1].written, problems, saved)
     if held.pending:

@@ -4,8 +4,9 @@ For a target sensor pose the planner takes every IK branch, nearest to the curre
 and keeps the first one whose configuration and straight joint-space path are collision free
 (robot against table, object and itself, with padding) and keep the sensor inside the
 workspace all along (the hardware's safety limits refuse any command that leaves it). If no
-straight path qualifies it tries the path through the home configuration. The result is a typed `MotionPlan`: a failure says
-why and never raises, so an episode can try another viewpoint.
+straight path qualifies it tries the path through the home configuration. The result is a
+typed `MotionPlan`: a failure says why and never raises, so an episode can try another
+viewpoint.
 
 Trajectories are synchronised trapezoidal velocity profiles through the waypoints (stopping at
 each), represented exactly as a cubic-Hermite `PiecewisePolynomial` (a quadratic is a cubic).
