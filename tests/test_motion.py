@@ -1,5 +1,7 @@
 """Motion: trapezoidal trajectories, and typed planning failures in the shipped cell."""
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -133,3 +135,15 @@ def test_path_in_workspace_sees_a_swing_between_two_inside_poses(planner):
     assert np.all((ends >= lower) & (ends <= upper)) and mid[0] < lower[0]  # the premise
     assert not planner.path_in_workspace(np.array([a, b]))
     assert planner.path_in_workspace(np.array([a, a]))
+
+
+def test_building_a_planner_logs_nothing_below_warning_and_restores_the_level(caplog):
+    drake_log = logging.getLogger("drake")
+    drake_log.setLevel(logging.INFO)
+    try:
+        with caplog.at_level(logging.INFO, logger="drake"):
+            MotionPlanner(Scenario())
+        assert not [r for r in caplog.records if r.name == "drake" and r.levelno < logging.WARNING]
+        assert drake_log.level == logging.INFO
+    finally:
+        drake_log.setLevel(logging.NOTSET)

@@ -15,6 +15,7 @@ each), represented exactly as a cubic-Hermite `PiecewisePolynomial` (a quadratic
 from __future__ import annotations
 
 import itertools
+import logging
 
 import numpy as np
 from pydrake.planning import SceneGraphCollisionChecker
@@ -83,13 +84,21 @@ class MotionPlanner:
         self._model = builder.Build()
         robot = [plant.GetModelInstanceByName(n) for n in ROBOT_MODEL_NAMES
                  if plant.HasModelInstanceNamed(n)]
-        self._checker = SceneGraphCollisionChecker(
-            model=self._model,
-            robot_model_instances=robot,
-            edge_step_size=scenario.robot.collision_check_step,
-            env_collision_padding=scenario.robot.collision_padding,
-            self_collision_padding=0.0,
-        )
+        # Drake says at INFO how many contexts it allocates, on every construction: to a
+        # user of the Python API that is noise, so this one call logs warnings only.
+        drake_log = logging.getLogger("drake")
+        level = drake_log.level
+        drake_log.setLevel(max(drake_log.getEffectiveLevel(), logging.WARNING))
+        try:
+            self._checker = SceneGraphCollisionChecker(
+                model=self._model,
+                robot_model_instances=robot,
+                edge_step_size=scenario.robot.collision_check_step,
+                env_collision_padding=scenario.robot.collision_padding,
+                self_collision_padding=0.0,
+            )
+        finally:
+            drake_log.setLevel(level)
         self.X_W_base = fixed_pose(plant, "world", "base").GetAsMatrix4()
         self.X_tool0_S = fixed_pose(plant, "tool0", "tof").GetAsMatrix4()
         self._X_base_W = np.linalg.inv(self.X_W_base)
