@@ -17,7 +17,7 @@ ALLOWED = {"station/scenario.py", "station/parts.py", "station/sim_cell.py"}
 
 def _device_uses(path: Path) -> list[int]:
     """Lines of `path` that read a scenario's `device` (`scenario.device`, `self._scenario.
-    device`, ...) or use `device_params`."""
+    device`, ...) or use `device_params` or `device_profile`."""
     def scenario_name(node: ast.AST) -> bool:
         name = node.attr if isinstance(node, ast.Attribute) else getattr(node, "id", "")
         return "scenario" in name
@@ -26,7 +26,7 @@ def _device_uses(path: Path) -> list[int]:
     return [node.lineno for node in ast.walk(tree)
             if (isinstance(node, ast.Attribute) and node.attr == "device"
                 and scenario_name(node.value))
-            or (isinstance(node, ast.Name) and node.id == "device_params")]
+            or (isinstance(node, ast.Name) and node.id in ("device_params", "device_profile"))]
 
 
 def test_only_the_simulated_sensor_reads_the_device_section():

@@ -104,6 +104,9 @@ class ZoneGeometry:
         flip_x: raw column index runs towards -x.
         flip_y: raw row index runs towards -y.
         transpose: raw rows are columns.
+        centres_deg: zone centre directions where they are not the uniform grid's: res * res
+            (angle about y towards +x, angle about x towards +y) pairs, degrees, row-major,
+            flattened; each zone still spans `zone_deg` around its centre. None: uniform.
     """
 
     resolution: int = 8
@@ -111,6 +114,15 @@ class ZoneGeometry:
     flip_x: bool = False
     flip_y: bool = False
     transpose: bool = False
+    centres_deg: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.centres_deg is not None:
+            self.centres_deg = tuple(float(v) for v in np.ravel(self.centres_deg))
+            if len(self.centres_deg) != 2 * self.resolution**2:
+                raise ValueError(f"ZoneGeometry.centres_deg needs {2 * self.resolution**2} "
+                                 f"angles (an (x, y) pair per zone); got "
+                                 f"{len(self.centres_deg)}")
 
     @property
     def zone_deg(self) -> float:
@@ -154,20 +166,48 @@ class ZoneGeometry:
 
         Multiplying by a perpendicular distance gives the zone-centre point.
         """
+        if self.centres_deg is not None:
+            t = np.tan(self.sub_angles_xy_rad(1)[:, :, 0, 0])
+            return np.concatenate([t, np.ones((*t.shape[:2], 1))], axis=-1)
         t = np.tan(self.zone_centres_rad())
         tx, ty = np.meshgrid(t, t, indexing="xy")
         return np.stack([tx, ty, np.ones_like(tx)], axis=-1)
 
     def sub_angles_rad(self, k: int) -> np.ndarray:
         """(res*k,) angles along either axis of k sub-rays per zone, evenly spaced in angle and
-        centred in their cells, zone by zone. k = 1 gives the zone centres."""
+        centred in their cells, zone by zone, on the uniform grid (`centres_deg` ignored).
+        k = 1 gives the zone centres."""
         edges = self.zone_edges_rad()
         step = (edges[1] - edges[0]) / k
         return (edges[:-1, None] + (np.arange(k) + 0.5) * step).reshape(-1)
 
+    def sub_angles_xy_rad(self, k: int) -> np.ndarray:
+        """(res, res, k, k, 2) (angle x, angle y) of k x k sub-rays evenly spaced in angle over
+        each zone's footprint, row-major zones, around `centres_deg` where given."""
+        res = self.resolution
+        if self.centres_deg is None:
+            a = self.sub_angles_rad(k).reshape(res, k)
+            ax = np.broadcast_to(a[None, :, None, :], (res, res, k, k))
+            ay = np.broadcast_to(a[:, None, :, None], (res, res, k, k))
+            return np.stack([ax, ay], axis=-1)
+        centres = np.deg2rad(np.reshape(self.centres_deg, (res, res, 2)))
+        offset = (np.arange(k) + 0.5 - k / 2) * np.deg2rad(self.zone_deg) / k
+        ax = centres[:, :, None, None, 0] + offset[None, None, None, :]
+        ay = centres[:, :, None, None, 1] + offset[None, None, :, None]
+        return np.stack(np.broadcast_arrays(ax, ay), axis=-1)
+
+    def max_angle_rad(self) -> float:
+        """Half-width of the square that holds every zone's footprint, radians."""
+        if self.centres_deg is None:
+            return float(np.deg2rad(self.fov_deg) / 2)
+        return float(np.deg2rad(np.max(np.abs(self.centres_deg)) + self.zone_deg / 2))
+
     def sub_directions(self, k: int) -> np.ndarray:
         """(res, res, k, k, 3) (tan ax, tan ay, 1) of k x k sub-rays evenly spaced in angle over
         each zone's footprint, row-major. k = 1 gives the zone centres."""
+        if self.centres_deg is not None:
+            t = np.tan(self.sub_angles_xy_rad(k))
+            return np.concatenate([t, np.ones((*t.shape[:-1], 1))], axis=-1)
         t = np.tan(self.sub_angles_rad(k))
         tx, ty = np.meshgrid(t, t, indexing="xy")  # (res*k, res*k), [row, col]
         d = np.stack([tx, ty, np.ones_like(tx)], axis=-1)
@@ -279,7 +319,8 @@ def cluster_depths(sub_depth_m: np.ndarray, params: SensorModelParams) -> np.nda
 
     Args:
         sub_depth_m: (res, res, k, k) perpendicular depths, metres, over each zone's footprint,
-            row-major zones; inf, NaN or <= 0 where nothing returns.
+            row-major zones; inf, NaN or <= 0 where nothing returns. (res, res, n * k * k)
+            takes n renders over the frame period together.
         params: sensor model.
 
     Returns:
@@ -287,9 +328,10 @@ def cluster_depths(sub_depth_m: np.ndarray, params: SensorModelParams) -> np.nda
     """
     res, k = params.geometry.resolution, params.subsamples
     sub = np.asarray(sub_depth_m, dtype=np.float64)
-    if sub.shape != (res, res, k, k):
-        raise ValueError(f"sub_depth_m has shape {sub.shape}; expected {(res, res, k, k)}")
-    return nearest_cluster_depth(sub.reshape(res * res, k * k), params).reshape(res, res)
+    if sub.shape[:2] != (res, res) or sub[0, 0].size % (k * k):
+        raise ValueError(f"sub_depth_m has shape {sub.shape}; expected {(res, res, k, k)} "
+                         f"(or (res, res, n * k * k): n renders over the frame)")
+    return nearest_cluster_depth(sub.reshape(res * res, -1), params).reshape(res, res)
 
 
 @numba.njit(cache=True)

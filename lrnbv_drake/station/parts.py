@@ -4,6 +4,7 @@ every field is read in one place and a new field has one home."""
 from __future__ import annotations
 
 import dataclasses as dc
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,12 @@ from lrnbv_drake.core.planning.policy import ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop, BoxStopParams
 from lrnbv_drake.core.robot_safety import SafetyLimits
 from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams, ZoneGeometry
+from lrnbv_drake.core.tof_device import (
+    PROFILES,
+    DeviceBehaviour,
+    DeviceProfile,
+    st_zone_centres_deg,
+)
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.resources import resolve_url
 from lrnbv_drake.station.scenario import Scenario, ScenarioError
@@ -48,16 +55,61 @@ def sensor_params(scenario: Scenario) -> SensorModelParams:
     )
 
 
+def device_profile(scenario: Scenario) -> DeviceProfile:
+    """The simulated device's profile with `device:`'s knobs where set."""
+    d = scenario.device
+    profile = PROFILES[d.profile]
+    knobs = {f.name: getattr(d, f.name) for f in dc.fields(DeviceBehaviour)
+             if getattr(d, f.name) is not None}
+    return DeviceProfile(
+        dc.replace(profile.behaviour, **knobs),
+        zone_directions=d.zone_directions or profile.zone_directions,
+        integration_steps=d.integration_steps or profile.integration_steps)
+
+
 def device_params(scenario: Scenario) -> SensorModelParams:
-    """How the simulated device behaves: the model with `device:`'s fields where set. Only the
-    simulated sensor may use it (tests/test_device_section.py checks)."""
+    """How the simulated device behaves: the model with `device:`'s fields where set, and
+    the profile's zone directions. Only the simulated sensor may use it
+    (tests/test_device_section.py checks)."""
     model, d = sensor_params(scenario), scenario.device
     noise = NoiseModel(sigma0_mm=model.noise.sigma0_mm if d.sigma0_mm is None else d.sigma0_mm,
                        k=model.noise.k if d.noise_k is None else d.noise_k)
-    return dc.replace(model, noise=noise,
+    geometry = dc.replace(model.geometry, centres_deg=_zone_centres(
+        device_profile(scenario).zone_directions, model.geometry.resolution))
+    return dc.replace(model, noise=noise, geometry=geometry,
                       min_share=model.min_share if d.min_share is None else d.min_share,
                       cluster_gap_mm=(model.cluster_gap_mm if d.cluster_gap_mm is None
                                       else d.cluster_gap_mm))
+
+
+def _zone_centres(directions: str, resolution: int) -> np.ndarray | None:
+    """Zone centres (`ZoneGeometry.centres_deg`) for "uniform" (None), "st" or a CSV file
+    of resolution^2 rows "x_deg, y_deg"."""
+    if directions == "uniform":
+        return None
+    if directions == "st":
+        return st_zone_centres_deg(resolution)
+    try:
+        table = np.loadtxt(resolve_url(directions), delimiter=",", ndmin=2)
+    except (OSError, ValueError) as e:
+        raise ScenarioError(f"field 'device.zone_directions': cannot read {directions!r} as "
+                            f"'uniform', 'st' or a CSV of x_deg, y_deg rows: {e}") from e
+    if table.shape != (resolution**2, 2):
+        raise ScenarioError(f"field 'device.zone_directions': {directions} has shape "
+                            f"{table.shape}; expected {(resolution**2, 2)} (x_deg, y_deg "
+                            f"per zone, row-major)")
+    return table.reshape(-1)
+
+
+def scene_reflectance(scenario: Scenario) -> Callable[[np.ndarray], np.ndarray]:
+    """Reflectance at world points (n, 3): the table's within 3 mm of its top, the object's
+    elsewhere (the cell has nothing else in the sensor's view)."""
+    table, rho_table, rho_object = (scenario.cell.table_height, scenario.cell.table_reflectance,
+                                    scenario.object.reflectance)
+
+    def reflectance(p_W: np.ndarray) -> np.ndarray:
+        return np.where(np.abs(p_W[:, 2] - table) < 0.003, rho_table, rho_object)
+    return reflectance
 
 
 def box_estimator(scenario: Scenario) -> BoxEstimator | None:

@@ -52,6 +52,8 @@ class CellConfig:
     directives: str = package_url("cell/cell.dmd.yaml")
     # Height of the table top in the world frame, metres.
     table_height: float = 0.0
+    # Reflectance of the table top at 940 nm; only a non-ideal simulated device reads it.
+    table_reflectance: float = 0.3
     # Axis-aligned box (world frame, metres) the sensor origin must stay in.
     workspace_lower: list[float] = dc.field(default_factory=lambda: [0.0, -0.6, 0.05])
     workspace_upper: list[float] = dc.field(default_factory=lambda: [1.0, 0.6, 1.0])
@@ -69,6 +71,8 @@ class ObjectConfig:
     x: float = 0.50
     y: float = 0.0
     yaw_deg: float = 0.0
+    # Reflectance at 940 nm (0.54: the datasheet's grey); only a non-ideal device reads it.
+    reflectance: float = 0.54
 
 
 @dc.dataclass
@@ -114,6 +118,34 @@ class DeviceConfig:
     # Noise: sigma = max(sigma0_mm, noise_k * distance).
     sigma0_mm: float | None = None
     noise_k: float | None = None
+    # The device as a whole: "ideal" (the model's rule above: the nearest surface holding
+    # min_share, Gaussian noise, status 5) or "datasheet" (ST's documented behaviour,
+    # docs/sensor-model.md section 8). The fields below override one knob of the profile.
+    profile: str = "ideal"
+    # Which target a zone reports: "closest" or "strongest" (ST's default).
+    target_order: str | None = None
+    # Surfaces closer than this in depth merge into one target with status 9, mm (ST: 600;
+    # 0 keeps the model's rule).
+    merge_mm: float | None = None
+    # Where a merged target lies: "signal" (signal-weighted mean), "nearest" or "farthest".
+    merged_depth: str | None = None
+    # Share of each neighbouring zone's samples the sharpener lets into a zone.
+    sharpener_bleed: float | None = None
+    # Weight samples by the emitter's fall-off towards the edges of the field.
+    illumination: bool | None = None
+    # Noise law: "model" (sigma0_mm, noise_k) or "datasheet" (by reflectance and ambient).
+    accuracy: str | None = None
+    # Ambient light, klux (5 is the datasheet's bright case).
+    ambient_klux: float | None = None
+    # Log-normal spread of the reported sigma around the true one.
+    reported_sigma_spread: float | None = None
+    # Status 6 on the first frame, 10 where a zone has just acquired a target.
+    startup_statuses: bool | None = None
+    # Zone centre directions: "uniform", "st" (the shape of ST's table) or a CSV file of
+    # resolution^2 rows "x_deg, y_deg", row-major.
+    zone_directions: str | None = None
+    # Renders a frame integrates over its period (a moving sensor blurs), >= 1.
+    integration_steps: int | None = None
 
 
 @dc.dataclass

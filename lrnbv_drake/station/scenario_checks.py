@@ -21,6 +21,7 @@ import trimesh
 import yaml
 
 from lrnbv_drake.core import objects
+from lrnbv_drake.core.tof_device import ACCURACY_LAWS, MERGED_DEPTHS, PROFILES, TARGET_ORDERS
 from lrnbv_drake.core.tof_protocol import RESOLUTIONS
 
 if TYPE_CHECKING:  # scenario.py calls these checks while loading; only the type is needed
@@ -77,12 +78,14 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("robot.collision_check_step", _above(0)),
     ("robot.collision_padding", _at_least(0)),
     ("cell.table_height", _FINITE),
+    ("cell.table_reflectance", _FRACTION),
     ("cell.workspace_lower", _vector(3)),
     ("cell.workspace_upper", _vector(3)),
     ("object.scale", _above(0)),
     ("object.x", _FINITE),
     ("object.y", _FINITE),
     ("object.yaw_deg", _FINITE),
+    ("object.reflectance", _FRACTION),
     ("sensor.resolution", ((lambda v: v in RESOLUTIONS.values()),
                            f"one of {sorted(RESOLUTIONS.values())} (the VL53L8CX's modes)")),
     ("sensor.fov_deg", _number(lambda v: 0 < v < 180, "an angle in (0, 180) degrees")),
@@ -94,6 +97,15 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("sensor.period", _above(0)),
     ("sensor.settle_frames", _at_least(0)),
     ("sensor.baud", _at_least(1)),
+    ("device.profile", _one_of(*PROFILES)),
+    ("device.target_order", _one_of(*TARGET_ORDERS)),
+    ("device.merge_mm", _at_least(0)),
+    ("device.merged_depth", _one_of(*MERGED_DEPTHS)),
+    ("device.sharpener_bleed", _number(lambda v: 0 <= v <= 1, "a share in [0, 1]")),
+    ("device.accuracy", _one_of(*ACCURACY_LAWS)),
+    ("device.ambient_klux", _at_least(0)),
+    ("device.reported_sigma_spread", _at_least(0)),
+    ("device.integration_steps", _at_least(1)),
     ("mapping.resolution", _above(0)),
     ("mapping.lower", _vector(3)),
     ("mapping.upper", _vector(3)),
@@ -151,7 +163,7 @@ def check_ranges(scenario: Scenario) -> None:
     `BOXES`); the types are already checked when the scenario is loaded."""
     for path, ok, expected in RULES:
         value = _field(scenario, path)
-        if not ok(value):
+        if value is not None and not ok(value):  # None: an optional field left unset
             raise ScenarioError(f"field '{path}': expected {expected}, got {value!r}")
     for lower_path, upper_path in BOXES:
         lower, upper = _field(scenario, lower_path), _field(scenario, upper_path)

@@ -20,7 +20,7 @@ from lrnbv_drake.station.cell_models import (
     apply_visualization,
     fixed_pose,
 )
-from lrnbv_drake.station.parts import device_params
+from lrnbv_drake.station.parts import device_params, device_profile, scene_reflectance
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.systems.sensor_pose import SensorPose
 from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer
@@ -38,12 +38,16 @@ def make_sim_cell(scenario: Scenario, meshcat: Meshcat | None = None) -> Cell:
 
     tof_frame = plant.GetFrameByName("tof")
     add_tof_renderer(scene_graph)
+    device = device_profile(scenario)
     sensor = builder.AddNamedSystem("tof", ToFSensor(
         parent_frame_id=plant.GetBodyFrameIdOrThrow(tof_frame.body().index()),
         X_PS=tof_frame.GetFixedPoseInBodyFrame(),
         params=device_params(scenario),
         seed=scenario.seed,
         period=scenario.sensor.period,
+        behaviour=device.behaviour,
+        reflectance=scene_reflectance(scenario),
+        integration_steps=device.integration_steps,
     ))
     builder.Connect(scene_graph.get_query_output_port(), sensor.get_input_port())
     pose = builder.AddNamedSystem("tof_pose", SensorPose(

@@ -17,6 +17,8 @@ frame without touching state.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
@@ -34,7 +36,8 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import Context, InputPort, LeafSystem, OutputPort, State
 from pydrake.systems.sensors import CameraInfo
 
-from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame, frame_rng, zone_readings
+from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame, frame_rng
+from lrnbv_drake.core.tof_device import DeviceBehaviour, device_readings, illumination_weight
 
 #: Near clipping plane and minimum depth, metres: geometry closer than 5 mm to the sensor is not
 #: rendered. The device's own 20 mm minimum is applied by the sensor model, not here.
@@ -62,7 +65,7 @@ def tof_depth_camera(params: SensorModelParams, renderer_name: str = "vtk") -> D
     zone) even with a half-pixel error in the pixel-centre convention.
     """
     geometry = params.geometry
-    half_fov = np.deg2rad(geometry.fov_deg) / 2
+    half_fov = geometry.max_angle_rad()
     sample_pitch = np.deg2rad(geometry.zone_deg) / params.subsamples
     size = int(np.ceil(4 * np.tan(half_fov) / sample_pitch))
     focal = size / 2 / np.tan(half_fov)
@@ -85,15 +88,12 @@ def sample_zone_depths(
     Returns:
         (res, res, k, k) depths in row-major zone order.
     """
-    geometry, k = params.geometry, params.subsamples
-    tan = np.tan(geometry.sub_angles_rad(k))
+    tan = np.tan(params.geometry.sub_angles_xy_rad(params.subsamples))
     info = camera.core().intrinsics()
     # VTK samples pixel u at tan = (u + 0.5 - center) / focal.
-    cols = np.rint(info.center_x() + info.focal_x() * tan - 0.5).astype(np.intp)
-    rows = np.rint(info.center_y() + info.focal_y() * tan - 0.5).astype(np.intp)
-    depth = depth_image[np.ix_(rows, cols)]
-    res = geometry.resolution
-    return depth.reshape(res, k, res, k).transpose(0, 2, 1, 3)
+    cols = np.rint(info.center_x() + info.focal_x() * tan[..., 0] - 0.5).astype(np.intp)
+    rows = np.rint(info.center_y() + info.focal_y() * tan[..., 1] - 0.5).astype(np.intp)
+    return depth_image[rows, cols]
 
 
 def render_zone_depths(
@@ -138,6 +138,11 @@ class ToFSensor(LeafSystem):
 
     Frame n (sequence n) draws its noise from `frame_rng(seed, n)`, so a seed and a scene
     reproduce the same frames whatever else the diagram does.
+
+    With `integration_steps` n > 1 the sensor renders n times per frame period and a frame
+    reduces the last n renders together, as the device integrates over its whole frame in
+    continuous mode: a frame taken while the sensor moves mixes the poses it passed. The first
+    frame then comes at (n - 1) / n periods.
     """
 
     def __init__(
@@ -149,6 +154,9 @@ class ToFSensor(LeafSystem):
         renderer_name: str = "vtk",
         seed: int = 0,
         period: float = 1 / 15,
+        behaviour: DeviceBehaviour | None = None,
+        reflectance: Callable[[np.ndarray], np.ndarray] | None = None,
+        integration_steps: int = 1,
     ) -> None:
         """
         Args:
@@ -159,22 +167,39 @@ class ToFSensor(LeafSystem):
             renderer_name: SceneGraph renderer to use.
             seed: noise seed, >= 0.
             period: capture period, seconds (1/15: 8x8 mode at its maximum rate).
+            behaviour: the device's departures from the model (`core.tof_device`); the
+                default is the ideal device.
+            reflectance: reflectance of the surface at world points (n, 3); 0.5 everywhere
+                if not given. Only a non-ideal `behaviour` uses it.
+            integration_steps: renders per frame period that a frame integrates, >= 1.
         """
         super().__init__()
         if seed < 0:
             raise ValueError(f"seed must be >= 0; got {seed}")
+        if integration_steps < 1:
+            raise ValueError(f"integration_steps must be >= 1; got {integration_steps}")
         self._parent_frame_id = parent_frame_id
         self._X_PS = RigidTransform(X_PS)
         self._params = params if params is not None else SensorModelParams()
+        self._behaviour = behaviour if behaviour is not None else DeviceBehaviour()
+        self._reflectance = reflectance
+        self._steps = integration_steps
         self._seed = seed
         self._camera = tof_depth_camera(self._params, renderer_name)
+        k = self._params.subsamples
+        self._directions = self._params.geometry.sub_directions(k)
+        angles = self._params.geometry.sub_angles_xy_rad(k)
+        self._weight = (illumination_weight(angles[..., 0], angles[..., 1])
+                        if self._behaviour.illumination else None)
 
         self._query_port = self.DeclareAbstractInputPort(
             "geometry_query", AbstractValue.Make(QueryObject())
         )
         empty = ToFFrame.empty(self._params.geometry.resolution)
         self._frame_index = self.DeclareAbstractState(AbstractValue.Make(empty))
-        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._Capture)
+        self._renders_index = self.DeclareAbstractState(AbstractValue.Make(()))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period / integration_steps, 0.0,
+                                                    self._Capture)
         self._frame_port = self.DeclareStateOutputPort("tof_frame", self._frame_index)
 
     @property
@@ -194,29 +219,53 @@ class ToFSensor(LeafSystem):
         return self._frame_port
 
     def CaptureFrame(self, context: Context, sequence: int | None = None) -> ToFFrame:
-        """Captures a frame from the poses in `context` without changing its state.
+        """Captures a frame from the poses in `context` (one render, as if at rest) without
+        changing its state.
 
         Args:
             context: this system's context.
             sequence: number to stamp and seed the noise with; by default the one after the
                 frame in state, i.e. what the next periodic capture would produce.
         """
+        return self._Reduce(context, [self._Render(context)], sequence)
+
+    def _Render(self, context: Context) -> tuple[np.ndarray, np.ndarray | None]:
+        """One render: the zone depths and, for a non-ideal device, each sample's
+        reflectance."""
+        query = self._query_port.Eval(context)
+        depth = render_zone_depths(query, self._camera, self._parent_frame_id, self._X_PS,
+                                   self._params)
+        if self._behaviour.ideal or self._reflectance is None:
+            return depth, None
+        X_WS = query.GetPoseInWorld(self._parent_frame_id) @ self._X_PS
+        with np.errstate(invalid="ignore"):
+            p_S = (self._directions * np.where(np.isfinite(depth), depth, 0.0)[..., None])
+        p_W = X_WS.multiply(p_S.reshape(-1, 3).T).T
+        return depth, np.asarray(self._reflectance(p_W), float).reshape(depth.shape)
+
+    def _Reduce(self, context: Context, renders: list, sequence: int | None) -> ToFFrame:
+        previous = self._frame_port.Eval(context)
         if sequence is None:
-            sequence = self._frame_port.Eval(context).sequence + 1
-        sub_depth_m = render_zone_depths(
-            self._query_port.Eval(context),
-            self._camera,
-            self._parent_frame_id,
-            self._X_PS,
-            self._params,
-        )
-        return zone_readings(
-            sub_depth_m,
-            self._params,
-            frame_rng(self._seed, sequence),
-            sequence=sequence,
-            timestamp_us=round(context.get_time() * 1e6),
-        )
+            sequence = previous.sequence + 1
+        res = self._params.geometry.resolution
+        depth = (renders[0][0] if len(renders) == 1 else
+                 np.concatenate([d.reshape(res, res, -1) for d, _ in renders], axis=-1))
+        rho = (None if renders[0][1] is None else
+               np.concatenate([r.reshape(res, res, -1) for _, r in renders], axis=-1))
+        weight = (None if self._weight is None else
+                  np.concatenate([self._weight.reshape(res, res, -1)] * len(renders), axis=-1))
+        return device_readings(
+            depth, self._params, self._behaviour, frame_rng(self._seed, sequence),
+            reflectance=rho, weight=weight,
+            previous=previous if previous.sequence > 0 else None,
+            sequence=sequence, timestamp_us=round(context.get_time() * 1e6))
 
     def _Capture(self, context: Context, state: State) -> None:
-        state.get_mutable_abstract_state(self._frame_index).set_value(self.CaptureFrame(context))
+        renders = [*context.get_abstract_state(self._renders_index).get_value(),
+                   self._Render(context)]
+        if len(renders) < self._steps:
+            state.get_mutable_abstract_state(self._renders_index).set_value(tuple(renders))
+            return
+        state.get_mutable_abstract_state(self._renders_index).set_value(())
+        state.get_mutable_abstract_state(self._frame_index).set_value(
+            self._Reduce(context, renders, None))
