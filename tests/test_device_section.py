@@ -49,3 +49,17 @@ def test_device_fields_default_to_the_model_and_override_it_one_by_one():
     assert (device.min_share, device.noise.sigma0_mm, device.cluster_gap_mm) == (0.3, 9.0, 40.0)
     assert device.noise.k == model.noise.k
     np.testing.assert_equal(device.geometry.directions(), model.geometry.directions())
+
+
+def test_the_ideal_device_follows_the_model_and_the_datasheet_one_does_not():
+    from lrnbv_drake.station.parts import device_profile
+
+    model = load_scenario(data="sensor: {zone_directions: st, merge_mm: 300, "
+                               "target_order: strongest}")
+    ideal = device_profile(model)
+    assert (ideal.behaviour.merge_mm, ideal.behaviour.target_order) == (300.0, "strongest")
+    np.testing.assert_equal(device_params(model).geometry.directions(),
+                            sensor_params(model).geometry.directions())
+    datasheet = device_profile(load_scenario(data="device: {profile: datasheet, merge_mm: 450}"))
+    assert (datasheet.behaviour.merge_mm, datasheet.zone_directions) == (450.0, "st")
+    assert datasheet.behaviour.sharpener_bleed > 0

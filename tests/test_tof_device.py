@@ -246,7 +246,8 @@ def test_a_frame_integrated_while_moving_mixes_the_poses_it_passed():
 
 
 def test_profiles_are_the_documented_sets_of_knobs():
-    assert PROFILES["ideal"].behaviour.ideal and PROFILES["ideal"].integration_steps == 1
+    ideal = PROFILES["ideal"]  # the sensor model itself
+    assert (ideal.behaviour, ideal.zone_directions, ideal.integration_steps) == (None, None, 1)
     ds = PROFILES["datasheet"]
     assert (ds.behaviour.target_order, ds.behaviour.merge_mm, ds.zone_directions) == (
         "strongest", 600.0, "st")

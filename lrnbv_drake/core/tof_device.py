@@ -130,21 +130,22 @@ class DeviceProfile:
     """A simulated device: its reduction and the two knobs that act where samples are made.
 
     Args:
-        behaviour: the reduction's knobs.
-        zone_directions: "uniform", "st" (`st_zone_centres_deg`) or a CSV file.
+        behaviour: the reduction's knobs; None: the sensor model's.
+        zone_directions: "uniform", "st" (`st_zone_centres_deg`) or a CSV file; None: the
+            sensor model's.
         integration_steps: renders a frame integrates over its period.
     """
 
-    behaviour: DeviceBehaviour
-    zone_directions: str = "uniform"
+    behaviour: DeviceBehaviour | None = None
+    zone_directions: str | None = None
     integration_steps: int = 1
 
 
-#: The profiles: the ideal device, and ST's defaults and documented behaviour, where the
-#: bleed, the merged depth and the sigma spread are our guesses (no public figure;
-#: docs/sensor-model.md, 8).
+#: The profiles: the ideal device (the sensor model itself), and ST's defaults and documented
+#: behaviour, where the bleed, the merged depth and the sigma spread are our guesses (no
+#: public figure; docs/sensor-model.md, 8).
 PROFILES = {
-    "ideal": DeviceProfile(DeviceBehaviour()),
+    "ideal": DeviceProfile(),
     "datasheet": DeviceProfile(
         DeviceBehaviour(target_order="strongest", merge_mm=600.0, merged_depth="signal",
                         sharpener_bleed=0.02, illumination=True, accuracy="datasheet",

@@ -40,7 +40,16 @@ def zone_geometry(scenario: Scenario) -> ZoneGeometry:
     """The sensor's zone geometry."""
     s = scenario.sensor
     return ZoneGeometry(resolution=s.resolution, fov_deg=s.fov_deg, flip_x=s.flip_x,
-                        flip_y=s.flip_y, transpose=s.transpose)
+                        flip_y=s.flip_y, transpose=s.transpose,
+                        centres_deg=_zone_centres(s.zone_directions, s.resolution,
+                                                  "sensor.zone_directions"))
+
+
+def sensor_behaviour(scenario: Scenario) -> DeviceBehaviour:
+    """How the model assumes a zone picks its reading among the surfaces it sees."""
+    s = scenario.sensor
+    return DeviceBehaviour(target_order=s.target_order, merge_mm=s.merge_mm,
+                           merged_depth=s.merged_depth)
 
 
 def sensor_params(scenario: Scenario) -> SensorModelParams:
@@ -62,8 +71,9 @@ def device_profile(scenario: Scenario) -> DeviceProfile:
     knobs = {f.name: getattr(d, f.name) for f in dc.fields(DeviceBehaviour)
              if getattr(d, f.name) is not None}
     return DeviceProfile(
-        dc.replace(profile.behaviour, **knobs),
-        zone_directions=d.zone_directions or profile.zone_directions,
+        dc.replace(profile.behaviour or sensor_behaviour(scenario), **knobs),
+        zone_directions=(d.zone_directions or profile.zone_directions
+                         or scenario.sensor.zone_directions),
         integration_steps=d.integration_steps or profile.integration_steps)
 
 
@@ -75,16 +85,17 @@ def device_params(scenario: Scenario) -> SensorModelParams:
     noise = NoiseModel(sigma0_mm=model.noise.sigma0_mm if d.sigma0_mm is None else d.sigma0_mm,
                        k=model.noise.k if d.noise_k is None else d.noise_k)
     geometry = dc.replace(model.geometry, centres_deg=_zone_centres(
-        device_profile(scenario).zone_directions, model.geometry.resolution))
+        device_profile(scenario).zone_directions, model.geometry.resolution,
+        "device.zone_directions"))
     return dc.replace(model, noise=noise, geometry=geometry,
                       min_share=model.min_share if d.min_share is None else d.min_share,
                       cluster_gap_mm=(model.cluster_gap_mm if d.cluster_gap_mm is None
                                       else d.cluster_gap_mm))
 
 
-def _zone_centres(directions: str, resolution: int) -> np.ndarray | None:
+def _zone_centres(directions: str, resolution: int, field: str) -> np.ndarray | None:
     """Zone centres (`ZoneGeometry.centres_deg`) for "uniform" (None), "st" or a CSV file
-    of resolution^2 rows "x_deg, y_deg"."""
+    of resolution^2 rows "x_deg, y_deg"; errors name `field`."""
     if directions == "uniform":
         return None
     if directions == "st":
@@ -92,10 +103,10 @@ def _zone_centres(directions: str, resolution: int) -> np.ndarray | None:
     try:
         table = np.loadtxt(resolve_url(directions), delimiter=",", ndmin=2)
     except (OSError, ValueError) as e:
-        raise ScenarioError(f"field 'device.zone_directions': cannot read {directions!r} as "
-                            f"'uniform', 'st' or a CSV of x_deg, y_deg rows: {e}") from e
+        raise ScenarioError(f"field '{field}': cannot read {directions!r} as 'uniform', "
+                            f"'st' or a CSV of x_deg, y_deg rows: {e}") from e
     if table.shape != (resolution**2, 2):
-        raise ScenarioError(f"field 'device.zone_directions': {directions} has shape "
+        raise ScenarioError(f"field '{field}': {directions} has shape "
                             f"{table.shape}; expected {(resolution**2, 2)} (x_deg, y_deg "
                             f"per zone, row-major)")
     return table.reshape(-1)

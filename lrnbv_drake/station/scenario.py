@@ -95,6 +95,16 @@ class SensorConfig:
     # Noise: sigma = max(sigma0_mm, noise_k * distance).
     sigma0_mm: float = 5.0
     noise_k: float = 0.015
+    # Zone centre directions: "uniform" (45 degrees / resolution apart) or a CSV file of
+    # resolution^2 rows "x_deg, y_deg", row-major (`lrnbv sensor characterize` writes one).
+    zone_directions: str = "uniform"
+    # Which target a zone reports, "closest" or "strongest", and surfaces closer than
+    # merge_mm in depth reported as one at a "signal"-weighted, "nearest" or "farthest" depth
+    # (0: the nearest surface holding min_share, no merging). The box estimator predicts
+    # readings with these.
+    target_order: str = "closest"
+    merge_mm: float = 0.0
+    merged_depth: str = "signal"
     # Frame period, seconds (15 Hz in 8x8 mode).
     period: float = 0.0666666666666666
     # Frames discarded after the arm stops before one is used.
