@@ -147,3 +147,15 @@ def test_building_a_planner_logs_nothing_below_warning_and_restores_the_level(ca
         assert drake_log.level == logging.INFO
     finally:
         drake_log.setLevel(logging.NOTSET)
+
+
+def test_travel_time_is_the_direct_trajectorys_duration(planner):
+    rng = np.random.default_rng(3)
+    q = kinematics.HOME.copy()
+    Q = q + rng.uniform(-2.0, 2.0, (6, 6))
+    Q[0] = q  # no motion at all
+    Q[1] = q + 0.01  # a short triangle
+    expected = [0.0] + [trapezoidal_trajectory(np.array([q, qi]), planner.max_velocity,
+                                               planner.max_acceleration).end_time()
+                        for qi in Q[1:]]
+    np.testing.assert_allclose(planner.travel_time(q, Q), expected, rtol=1e-12)

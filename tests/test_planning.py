@@ -117,7 +117,8 @@ def test_best_branch_maximises_the_summed_utility():
     #   0 -- 1 -- 2 -- 3        utilities: 1: 5, 2: -1, 3: 1  -> branch [1, 2, 3] sums to 5
     #         \-- 4             4: 0.5                       -> branch [1, 4] sums to 5.5
     #   0 -- 5                  5: 5.2                       -> branch [5] sums to 5.2
-    tree = ViewTree(poses=[np.eye(4)] * 6, parents=[-1, 0, 1, 2, 1, 0], gains=[None] * 6)
+    tree = ViewTree(poses=[np.eye(4)] * 6, parents=[-1, 0, 1, 2, 1, 0], gains=[None] * 6,
+                    configs=[None] * 6)
     utilities = np.array([5.0, -1.0, 1.0, 0.5, 5.2])
     assert sorted(map(tuple, tree.branches())) == [(1, 2, 3), (1, 4), (5,)]
     assert tree.best_branch(utilities) == [1, 4]
@@ -174,7 +175,8 @@ def _with_cache(monkeypatch, exploration, cached_positions):
     dut = _policy()
     dut.params.tree.max_edge = 0.05  # the random tree stays within 0.5 m of the start
     dut.workspace = AlignedBox(np.array([0.0, -0.5, 0.2]), np.array([1.2, 0.5, 0.7]))
-    dut.cache = [_Cached(look_at(p, [0.5, 0.0, 0.0]), None) for p in cached_positions]
+    dut.cache = [_Cached(look_at(p, [0.5, 0.0, 0.0]), None, np.zeros(6))
+                 for p in cached_positions]
     dut.iteration = 1
     return dut
 
@@ -285,3 +287,23 @@ def test_restore_puts_the_policy_where_the_run_was():
     restored.propose(Observation(time=5.0, q=np.zeros(6), X_WS=elsewhere, occupancy=GridMap(),
                                  n_acquisitions=4))
     assert not restored.visited.visited(elsewhere[None, :3, 3])[0]
+
+
+def test_the_travel_discount_scales_positive_utilities_by_exp_minus_lambda_t(monkeypatch):
+    """Two cached views with the same gains: without the discount they tie; with lambda = 0.5
+    the one 2 s away keeps exp(-1) of its utility against exp(-0.25) for the one 0.5 s away,
+    and a negative utility is left as it is."""
+    near, far = np.full(6, 0.1), np.full(6, 0.4)
+    dut = _with_cache(monkeypatch, lambda x: 1.0, [np.array([0.6, 0.2, 0.5]),
+                                                   np.array([0.6, -0.2, 0.5])])
+    dut.params.travel_discount = 0.5
+    dut.travel_time = lambda q, Q: 5.0 * np.max(np.abs(Q - q), axis=1)  # 0.5 s and 2 s
+    gains = Gains(np.array([1.0, 1.0, 0.5]), np.zeros(3), np.zeros(3),
+                  np.array([0.0, 0.0, -1.0]))  # the third: visited, U < 0
+    dut.utility.observe(gains)
+    u = dut._utilities(gains, [near, far, far])
+    u_plain = dut.utility(gains)
+    np.testing.assert_allclose(u[:2], u_plain[:2] * np.exp([-0.25, -1.0]))
+    assert u_plain[2] < 0 and u[2] == u_plain[2]
+    with pytest.raises(ValueError, match="travel_time"):
+        _policy(travel_discount=0.1)

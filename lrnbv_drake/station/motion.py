@@ -111,6 +111,18 @@ class MotionPlanner:
         self.home = kinematics.HOME.copy()
         self._path_step = scenario.robot.collision_check_step
 
+    def travel_time(self, q: np.ndarray, Q: np.ndarray) -> np.ndarray:
+        """Seconds the direct synchronised trapezoid from joints q takes to each of the
+        configurations Q (n, 6): the duration `trapezoidal_trajectory` gives a straight move
+        (a path through home takes longer)."""
+        dq = np.abs(np.atleast_2d(np.asarray(Q, float)) - np.asarray(q, float))
+        with np.errstate(divide="ignore", invalid="ignore"):  # dq = 0: no motion, 0 s
+            s_vel = np.min(self.max_velocity / dq, axis=1)
+            s_acc = np.min(self.max_acceleration / dq, axis=1)
+            t_acc = s_vel / s_acc
+            t = np.where(s_vel * t_acc >= 1.0, 2 * np.sqrt(1.0 / s_acc), t_acc + 1.0 / s_vel)
+        return np.where(np.isfinite(s_vel), t, 0.0)
+
     def sensor_pose(self, q: np.ndarray) -> np.ndarray:
         """X_WS (4x4) for joint positions q, from the analytic forward kinematics."""
         return kinematics.sensor_pose(q, self.X_W_base, self.X_tool0_S)

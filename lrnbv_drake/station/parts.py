@@ -171,7 +171,8 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
             scenario.planner, zone_geometry(scenario),
             workspace=AlignedBox(*(np.asarray(v, float) for v in motion.workspace)),
             ik=motion.ik_batch, collision_free=motion.collision_free,
-            table_height=scenario.cell.table_height, seed=scenario.seed, variant=planner)
+            table_height=scenario.cell.table_height, seed=scenario.seed, variant=planner,
+            travel_time=motion.travel_time)
     raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
 
 

@@ -141,6 +141,7 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("planner.tree.round_size", _at_least(1)),
     ("planner.cache_threshold", _FINITE),
     ("planner.cached_sample_spread", _at_least(0)),
+    ("planner.travel_discount", _at_least(0)),
     ("planner.search_lower", _vector(3)),
     ("planner.search_upper", _vector(3)),
     ("visualization.publish_period", _above(0)),

@@ -87,3 +87,7 @@ class PlannerParams:
     search_lower: list[float] = dc.field(default_factory=lambda: [0.25, -0.3, 0.0])
     search_upper: list[float] = dc.field(default_factory=lambda: [0.75, 0.3, 0.3])
     stop: StopParams = dc.field(default_factory=StopParams)
+    # lambda, 1/s: a view's positive utility is multiplied by exp(-lambda t), t the time the
+    # arm takes to reach it from where it is (the receding-horizon NBV planners' discount);
+    # 0 (the paper) leaves utilities as they are.
+    travel_discount: float = 0.0

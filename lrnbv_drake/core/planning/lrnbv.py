@@ -42,10 +42,12 @@ from lrnbv_drake.core.sensor import ZoneGeometry
 
 @dc.dataclass
 class _Cached:
-    """A cached node: its pose and raw gains (scored again whenever compared)."""
+    """A cached node: its pose, raw gains (scored again whenever compared) and the joint
+    configuration that reaches it."""
 
     X_WS: np.ndarray
     gains: Gains
+    q: np.ndarray
 
 
 def cache_capacity(m0: int, iteration: int, num_iterations: int) -> int:
@@ -66,15 +68,20 @@ class LrNbvPolicy(ViewpointPolicy):
         table_height: the ROI never extends below the table top.
         seed: seed of the tree sampling.
         variant: "lrnbv" or "nbv" (Gd and Gv weights set to zero).
+        travel_time: seconds the arm takes from joints q to each of configurations Q (n, 6),
+            `travel_time(q, Q)`; needed with `params.travel_discount` > 0.
     """
 
     capture_initial = True
 
     def __init__(self, params: PlannerParams, geometry: ZoneGeometry, workspace: AlignedBox,
                  ik, collision_free, table_height: float = 0.0, seed: int = 0,
-                 variant: str = "lrnbv"):
+                 variant: str = "lrnbv", travel_time=None):
         if variant not in ("lrnbv", "nbv"):
             raise ValueError(f"unknown variant '{variant}': expected 'lrnbv' or 'nbv'")
+        if params.travel_discount < 0 or (params.travel_discount > 0 and travel_time is None):
+            raise ValueError(f"travel_discount {params.travel_discount} needs to be >= 0, and "
+                             f"a travel_time function when > 0")
         weights = params.weights
         if variant == "nbv":
             weights = dc.replace(weights, density=0.0, visited=0.0)
@@ -85,6 +92,8 @@ class LrNbvPolicy(ViewpointPolicy):
         self.workspace = workspace
         self.ik = ik
         self.collision_free = collision_free
+        self.travel_time = travel_time
+        self._q = np.zeros(6)  # where the arm is, for the travel discount
         self.table_height = table_height
         self.visited = VisitedGrid(params.visited_cell_size)
         self.rng = np.random.default_rng(seed)
@@ -95,6 +104,17 @@ class LrNbvPolicy(ViewpointPolicy):
         self.last_tree: ViewTree | None = None
 
     # -- helpers --------------------------------------------------------------------------
+
+    def _utilities(self, gains: Gains, configs: Sequence[np.ndarray]) -> np.ndarray:
+        """The views' utilities, positive ones discounted by exp(-lambda t) for the time t
+        the arm takes to reach their configurations from where it is."""
+        utilities = self.utility(gains)
+        if self.params.travel_discount > 0 and len(configs):
+            t = self.travel_time(self._q, np.array(configs))
+            utilities = np.where(utilities > 0,
+                                 utilities * np.exp(-self.params.travel_discount * t),
+                                 utilities)
+        return utilities
 
     def _scorer(self, snapshot: PlanningSnapshot):
         def score(poses: np.ndarray) -> tuple[Gains, np.ndarray]:
@@ -134,7 +154,7 @@ class LrNbvPolicy(ViewpointPolicy):
         """Grows the tree and scores it; the utilities are current until the next scoring."""
         tree = expand_tree(tree, n, sampler, self.workspace, roi, self._scorer(snapshot),
                            reach, self.params.tree, steer)
-        utilities = self.utility(tree.candidate_gains())
+        utilities = self._utilities(tree.candidate_gains(), tree.configs[1:])
         return tree, utilities, tree.best_branch(utilities)
 
     def _cache_off_branch(self, tree: ViewTree, utilities: np.ndarray, branch: list[int],
@@ -145,11 +165,13 @@ class LrNbvPolicy(ViewpointPolicy):
         for i in range(1, len(tree.poses)):
             if i not in on_branch and i not in cached and \
                     utilities[i - 1] > self.params.cache_threshold:
-                self.cache.append(_Cached(tree.poses[i], tree.gains[i]))
+                self.cache.append(_Cached(tree.poses[i], tree.gains[i], tree.configs[i]))
                 cached.add(i)
 
-    def _cached_utilities(self) -> np.ndarray:
-        return self.utility(Gains.concatenate([c.gains for c in self.cache]))
+    def _cached_utilities(self, cache: Sequence[_Cached] | None = None) -> np.ndarray:
+        cache = self.cache if cache is None else cache
+        return self._utilities(Gains.concatenate([c.gains for c in cache]),
+                               [c.q for c in cache])
 
     def _update_cache(self, snapshot: PlanningSnapshot) -> float:
         """Lines 19-21: re-evaluate the cache, drop the nodes no longer above tau, keep the best
@@ -159,7 +181,7 @@ class LrNbvPolicy(ViewpointPolicy):
             poses = np.array([c.X_WS for c in self.cache])
             gains = evaluate_gains(poses, snapshot, self.rays, self.visited, self.params.gains)
             self.utility.observe(gains)
-            self.cache = [_Cached(X, gains.take(i)) for i, X in enumerate(poses)]
+            self.cache = [_Cached(c.X_WS, gains.take(i), c.q) for i, c in enumerate(self.cache)]
             keep = cache_capacity(self.params.num_cached_nodes, self.iteration,
                                   self.params.num_iterations)
             utilities = self._cached_utilities()
@@ -178,7 +200,7 @@ class LrNbvPolicy(ViewpointPolicy):
         if self.iteration >= self.params.num_iterations:
             return Proposal(done=True, reason=f"reached {self.params.num_iterations} iterations")
 
-        q = observation.q
+        q = self._q = np.asarray(observation.q, float)
         reach = Reach(lambda poses: self.ik(poses, q), self.collision_free)
         roi, object_points, center = self._roi(observation.extraction)
         snapshot = make_snapshot(observation.occupancy, roi, object_points, center,
@@ -188,7 +210,7 @@ class LrNbvPolicy(ViewpointPolicy):
 
         def cached_utilities() -> np.ndarray:
             # Scored now: the running maxima may have grown since the cache was updated.
-            return self.utility(Gains.concatenate([c.gains for c in cached_before]))
+            return self._cached_utilities(cached_before)
 
         def best_node(utilities: np.ndarray, branch: list[int]) -> tuple[int | None, float]:
             if not branch:

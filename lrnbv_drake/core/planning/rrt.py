@@ -39,6 +39,8 @@ class ViewTree:
     poses: list[np.ndarray]
     parents: list[int]
     gains: list[Gains]
+    # The collision-free joint configuration each node was reached with (the root's: None).
+    configs: list[np.ndarray | None]
 
     @property
     def size(self) -> int:
@@ -107,7 +109,7 @@ def expand_tree(tree: ViewTree | np.ndarray, n: int, sample_position: Callable[[
     """
     if not isinstance(tree, ViewTree):
         tree = ViewTree(poses=[np.asarray(tree, float)], parents=[-1],
-                        gains=[Gains(*(np.zeros(1) for _ in range(4)))])
+                        gains=[Gains(*(np.zeros(1) for _ in range(4)))], configs=[None])
     wanted = tree.size + n
     keep_out = roi.inflate(params.roi_clearance)
     aims = aim_points(roi, params.aim_offset_fraction)
@@ -139,10 +141,13 @@ def expand_tree(tree: ViewTree | np.ndarray, n: int, sample_position: Callable[[
         for b in range(len(new)):
             for k in np.argsort(-utilities[b * len(aims):(b + 1) * len(aims)], kind="stable"):
                 i = b * len(aims) + k
-                if has_ik[i] and any(reach.collision_free(q) for q in solutions[i]):
+                free = next((q for q in solutions[i] if reach.collision_free(q)), None) \
+                    if has_ik[i] else None
+                if free is not None:
                     tree.poses.append(poses[b, k])
                     tree.parents.append(int(nearest[b]))
                     tree.gains.append(gains.take(index_in_scored[i]))
+                    tree.configs.append(free)
                     break
         positions = np.array([X[:3, 3] for X in tree.poses])
     return tree
