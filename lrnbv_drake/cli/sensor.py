@@ -1,4 +1,5 @@
-"""`lrnbv sensor ...`: watch, record and characterize the real VL53L8CX over serial.
+"""`lrnbv sensor ...`: watch, record and characterize the real VL53L8CX over serial, and
+calibrate the sensor model from recordings.
 
 - `stream`: a live view of the 8x8 distances in the terminal, in the board's raw zone order
   (the order to read while calibrating the flips, docs/sensor-model.md).
@@ -6,25 +7,39 @@
   (`FILE.tof`, fsync'ed) before the next one is awaited, and the journal becomes the .npz at
   the end, so a crash or a pulled cable loses nothing already captured: the journal is
   CRC-checked line by line and `characterize` reads it as it is.
-- `characterize`: fits the simulator's noise model sigma = max(sigma0, k d) to recordings of a
-  flat target and writes `sensor.sigma0_mm` and `sensor.noise_k` into a scenario file.
+- `characterize`: fits the sensor model to calibration recordings and writes it into a
+  scenario's `sensor:` section: the noise sigma = max(sigma0, k d) from a flat board at several
+  distances (`sigma0_mm`, `noise_k`), the zone directions from a small target stepped across
+  the field of view (`zone_directions`, a CSV beside the scenario), and the mixed-zone rule
+  from a board edge swept across it (`target_order`, `merge_mm`, `merged_depth`, `min_share`).
+- `simulate`: makes those recordings with a scenario's simulated device (`device:`), to
+  calibrate from as from the real cell's (docs/sensor-calibration.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses as dc
+import math
 import sys
 from pathlib import Path
 
 from lrnbv_drake.core.sensor import STATUS_NO_TARGET, ToFFrame
+from lrnbv_drake.core.sensor_calibration import MixedZoneFit
 from lrnbv_drake.drivers.tof_serial import SensorError, SerialStats
 from lrnbv_drake.experiments.sensor_recording import (
+    RECORDING_FILES,
     RecordingNoise,
     characterize,
+    characterize_directions,
+    characterize_mixed_zones,
     record,
+    simulate_recordings,
     stream,
-    write_noise_to_scenario,
+    write_sensor_to_scenario,
 )
+from lrnbv_drake.station.parts import sensor_params
+from lrnbv_drake.station.scenario import load_scenario
 
 DEFAULT_BAUD = 460800
 #: Zone markers of the live view: valid, valid with a large pulse, any other status.
@@ -110,22 +125,73 @@ def _record(args: argparse.Namespace) -> int:
     return 1 if run.timeout else 130 if run.interrupted else 0
 
 
+def _mixed_lines(fit: MixedZoneFit) -> list[str]:
+    """What `characterize` prints of the mixed-zone fit."""
+    lo, hi = fit.merge_bounds_mm
+    merge = (f"merge_mm {fit.merge_mm:.0f} (the sweeps merged at {lo:.0f} mm, not at "
+             f"{hi:.0f} mm)" if fit.merge_mm > 0 and math.isfinite(hi) else
+             f"merge_mm {fit.merge_mm:.0f}")
+    rms = ", ".join(f"{k} {v:.1f} mm" for k, v in fit.merged_rms_mm.items()
+                    if math.isfinite(v))
+    rules = ", ".join(f"{order}/{m:.0f}: {100 * a:.1f} %"
+                      for (order, m), a in fit.candidates.items())
+    return [f"mixed zones: target_order {fit.target_order}, {merge}, merged_depth "
+            f"{fit.merged_depth}, min_share {fit.min_share:.3f}: predicts "
+            f"{100 * fit.agreement:.1f} % of {fit.zones} mixed zones",
+            f"  rules tried (order/merge_mm: agreement): {rules}",
+            *([f"  merged depth rms: {rms}"] if rms else [])]
+
+
 def _characterize(args: argparse.Namespace) -> int:
-    fit = characterize(args.frames, args.distance_mm, args.min_frames,
-                       lambda r: print(_recording_line(r)))
-    print(f"sigma = max({fit.sigma0_mm:.2f} mm, {fit.k:.5f} d): knee {fit.knee_mm:.0f} mm, "
-          f"rms residual {fit.rms_mm:.2f} mm over {fit.n_points} zones")
-    if fit.warning:
-        print(f"warning: {fit.warning}", file=sys.stderr)
-    write_noise_to_scenario(args.out, fit, args.frames)
-    print(f"wrote sensor.sigma0_mm and sensor.noise_k to {args.out}")
+    if not (args.frames or args.target or args.edge):
+        raise ValueError("give recordings: --frames (flat board), --target (small target) "
+                         "and/or --edge (edge sweep)")
+    params = sensor_params(load_scenario(filename=args.out if args.out.exists() else None))
+    noise = directions = mixed = None
+    if args.frames:
+        noise = characterize(args.frames, args.distance_mm, args.min_frames,
+                             lambda r: print(_recording_line(r)))
+        print(f"sigma = max({noise.sigma0_mm:.2f} mm, {noise.k:.5f} d): knee "
+              f"{noise.knee_mm:.0f} mm, rms residual {noise.rms_mm:.2f} mm over "
+              f"{noise.n_points} zones")
+        if noise.warning:
+            print(f"warning: {noise.warning}", file=sys.stderr)
+    if args.target:
+        directions = characterize_directions(args.target, params.geometry)
+        print(f"zone directions from {int(directions.hits.sum())} target sightings "
+              f"({directions.hits.min()} to {directions.hits.max()} per zone)")
+        params = dc.replace(params, geometry=dc.replace(params.geometry,
+                                                        centres_deg=directions.centres_deg))
+    if args.edge:
+        mixed = characterize_mixed_zones(args.edge, params)
+        print("\n".join(_mixed_lines(mixed)))
+        if mixed.warning:
+            print(f"warning: {mixed.warning}", file=sys.stderr)
+    fields = write_sensor_to_scenario(args.out, noise, directions, mixed,
+                                      [*args.frames, *args.target, *args.edge])
+    print(f"wrote sensor.{', sensor.'.join(fields)} to {args.out}")
     return 0
 
 
+def _simulate(args: argparse.Namespace) -> int:
+    clash = [args.out / name for name in RECORDING_FILES.values() if (args.out / name).exists()]
+    if clash and not args.overwrite:
+        raise ValueError(f"--out {args.out} holds {', '.join(p.name for p in clash)}: choose "
+                         f"another folder, or pass --overwrite to replace them")
+    scenario = load_scenario(filename=args.scenario, data=args.scenario_text)
+    simulate_recordings(scenario, args.out, on_recording=lambda kind, path, n: print(
+        f"wrote {n} {kind} frames to {path}", flush=True))
+    files = {kind: args.out / name for kind, name in RECORDING_FILES.items()}
+    print(f"calibrate with: lrnbv sensor characterize --frames {files['flat']} --target "
+          f"{files['target']} --edge {files['edge']} --out SCENARIO.yaml")
+    return 0
+
 
 def add_sensor_commands(subparsers: argparse._SubParsersAction) -> None:
-    """Adds `sensor stream|record|characterize` to the `lrnbv` parser's subcommands."""
-    sensor = subparsers.add_parser("sensor", help="the real VL53L8CX over serial",
+    """Adds `sensor stream|record|characterize|simulate` to the `lrnbv` parser's
+    subcommands."""
+    sensor = subparsers.add_parser("sensor", help="the real VL53L8CX over serial, and "
+                                                  "calibrating the sensor model",
                                    description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
     commands = sensor.add_subparsers(dest="sensor_command", required=True)
@@ -150,16 +216,34 @@ def add_sensor_commands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 
     p = commands.add_parser("characterize",
-                            help="fit sigma = max(sigma0, k d) from flat-target recordings")
-    p.add_argument("--frames", nargs="+", required=True, metavar="FILE",
-                   help="recordings (.npz, or a .tof journal), one per target distance")
+                            help="fit the sensor model (noise, zone directions, mixed zones) "
+                                 "to calibration recordings")
+    p.add_argument("--frames", nargs="+", default=[], metavar="FILE",
+                   help="flat-board recordings (.npz, or a .tof journal): one per distance, "
+                        "or holding each frame's distance (board_mm)")
     p.add_argument("--distance-mm", nargs="+", type=float, metavar="D",
-                   help="known perpendicular target distance of each recording; the fit then "
-                        "uses it for the zones on the target and reports the bias")
+                   help="known perpendicular board distance of each --frames recording; the "
+                        "fit then uses it for the zones on the board and reports the bias")
+    p.add_argument("--target", nargs="+", default=[], metavar="FILE",
+                   help="small-target recordings (.npz with target_deg, target_mm per frame)")
+    p.add_argument("--edge", nargs="+", default=[], metavar="FILE",
+                   help="edge-sweep recordings (.npz with edge_deg, near_mm, far_mm per "
+                        "frame)")
     p.add_argument("--out", type=Path, required=True,
-                   help="scenario YAML to write (merged into it if it exists)")
+                   help="scenario YAML to write (merged into it if it exists; its sensor "
+                        "section is the model refined, e.g. its zone flips)")
     p.add_argument("--min-frames", type=int, default=10,
-                   help="valid frames a zone needs to count (default 10)")
+                   help="valid frames a zone needs to count in the noise fit (default 10)")
+
+    p = commands.add_parser("simulate",
+                            help="make the calibration recordings with the simulated device")
+    p.add_argument("--scenario", help="scenario YAML file (its device: section and seed)")
+    p.add_argument("--scenario-text", metavar="YAML",
+                   help="scenario fields as YAML, over the file, e.g. "
+                        "'{device: {profile: datasheet}}'")
+    p.add_argument("--out", type=Path, required=True,
+                   help=f"folder for {', '.join(RECORDING_FILES.values())}")
+    p.add_argument("--overwrite", action="store_true", help="replace recordings in --out")
 
 
 def run_sensor_command(args: argparse.Namespace) -> int:
@@ -169,6 +253,8 @@ def run_sensor_command(args: argparse.Namespace) -> int:
             return _stream(args)
         if args.sensor_command == "record":
             return _record(args)
+        if args.sensor_command == "simulate":
+            return _simulate(args)
         return _characterize(args)
     except (ValueError, OSError, SensorError) as e:
         print(f"lrnbv sensor: error: {e}", file=sys.stderr)

@@ -1,5 +1,13 @@
-"""Characterising the ToF sensor's noise from recordings of a flat target: per-zone spread
-over a static recording, and the fit of the simulator's model sigma = max(sigma0, k d).
+"""Calibrating the sensor model from recordings a user can make on the real cell
+(docs/sensor-calibration.md):
+
+- noise: per-zone spread over static recordings of a flat board at several distances, and the
+  fit of the model's sigma = max(sigma0, k d);
+- zone directions: a small target stepped across the field of view, each zone's centre the
+  middle of the directions at which it reports the target;
+- the mixed-zone rule: a board edge swept across the field of view over a farther board, the
+  model's rule (target order, merge distance, merged depth, min_share) that predicts what the
+  zones the edge crosses report.
 
 Numbers only, no files: `experiments.sensor_recording` loads the recordings and writes the fit.
 """
@@ -7,10 +15,26 @@ Numbers only, no files: `experiments.sensor_recording` loads the recordings and 
 from __future__ import annotations
 
 import dataclasses as dc
+import math
 
 import numpy as np
 
-from lrnbv_drake.core.sensor import VALID_STATUSES
+from lrnbv_drake.core.sensor import (
+    STATUS_NO_TARGET,
+    STATUS_VALID,
+    VALID_STATUSES,
+    NoiseModel,
+    SensorModelParams,
+    ZoneGeometry,
+)
+from lrnbv_drake.core.tof_device import (
+    MERGED_DEPTHS,
+    STATUS_MERGED,
+    STATUS_NEW_TARGET,
+    STATUS_NO_WRAP_CHECK,
+    DeviceBehaviour,
+    device_readings,
+)
 
 
 @dc.dataclass(frozen=True)
@@ -126,3 +150,305 @@ def fit_noise_model(distance_mm: np.ndarray, std_mm: np.ndarray) -> NoiseFit:
             f"fitted knee ({fit.knee_mm:.0f} mm), so one parameter is only bounded: record "
             f"nearer and farther targets"))
     return fit
+
+
+# --- Zone directions from a small target stepped across the field of view --------------------
+
+#: Statuses that carry a range of the zone's own target (UM3109 Table 4): valid, valid on the
+#: first frame (no wrap-around check yet), merged, valid on a newly acquired target. 12 (a
+#: neighbour's target through the sharpener) and 13 (inconsistent) do not.
+RANGING_STATUSES: tuple[int, ...] = (STATUS_VALID, STATUS_NO_WRAP_CHECK, STATUS_MERGED,
+                                     STATUS_NEW_TARGET)
+#: Golden ratio's fractional part: the row-to-row shift of the target raster, as a share of
+#: the step, so that any few consecutive rows sample an axis at well-spread phases.
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+
+
+def target_raster(step_deg: float, span_deg: float) -> np.ndarray:
+    """(n, 2) target directions (x_deg, y_deg) for the zone-direction recording: a square
+    grid of `step_deg` over +-`span_deg`, each row shifted in x and each column in y by a
+    golden-ratio share of the step. A zone's footprint edges then fall between directions a
+    small fraction of the step apart across the rows it spans, so its centre is found to far
+    better than the step (`fit_zone_directions`) without a finer grid."""
+    if step_deg <= 0 or span_deg <= 0:
+        raise ValueError(f"target_raster needs step_deg > 0 and span_deg > 0; got {step_deg}, "
+                         f"{span_deg}")
+    grid = np.arange(-span_deg, span_deg + 1e-9, step_deg)
+    i, j = np.meshgrid(np.arange(grid.size), np.arange(grid.size), indexing="xy")
+    x = grid[i] + (j * _GOLDEN % 1.0) * step_deg
+    y = grid[j] + (i * _GOLDEN % 1.0) * step_deg
+    return np.stack([x.ravel(), y.ravel()], axis=-1)
+
+
+def target_hits(distance_mm: np.ndarray, status: np.ndarray, target_mm: np.ndarray
+                ) -> np.ndarray:
+    """(n, res, res) whether each zone reports the target in each frame: a ranging status at
+    a depth within max(25 mm, 10 %) of its known distance (anything else in range, e.g. a
+    background, reports another depth)."""
+    target = np.asarray(target_mm, float)[:, None, None]
+    return (np.isin(status, RANGING_STATUSES) & (distance_mm > 0)
+            & (np.abs(distance_mm - target) <= np.maximum(25.0, 0.1 * target)))
+
+
+@dc.dataclass(frozen=True)
+class ZoneDirectionFit:
+    """Zone centre directions measured with a small target.
+
+    Attributes:
+        centres_deg: (res * res * 2,) (x_deg, y_deg) per zone, row-major
+            (`ZoneGeometry.centres_deg`).
+        hits: (res, res) frames in which each zone reported the target.
+    """
+
+    centres_deg: np.ndarray
+    hits: np.ndarray
+
+
+def _footprint_middle(along: np.ndarray, across: np.ndarray, hit: np.ndarray, axis: str,
+                      zone: tuple[int, int]) -> float:
+    """Middle of a zone's footprint along one axis: each of its two edges lies between the
+    outermost target direction the zone saw and the nearest beyond it that it missed, among
+    the directions well inside the footprint across (strictly between the outermost hits)."""
+    seen = across[hit]
+    band = (across > seen.min()) & (across < seen.max())
+    if not np.any(band & hit):
+        band = (across >= seen.min()) & (across <= seen.max())
+    lo, hi = along[hit & band].min(), along[hit & band].max()
+    below, above = along[band & ~hit & (along < lo)], along[band & ~hit & (along > hi)]
+    if below.size == 0 or above.size == 0:
+        side = "-" if below.size == 0 else "+"
+        raise ValueError(f"zone {zone} saw the target up to the end of the recorded directions "
+                         f"on the {side}{axis} side: step the target further out")
+    return ((lo + below.max()) / 2 + (hi + above.min()) / 2) / 2
+
+
+def fit_zone_directions(hits: np.ndarray, target_deg: np.ndarray) -> ZoneDirectionFit:
+    """Each zone's centre direction from the directions at which it reported a small target.
+
+    A zone reports the target wherever the target overlaps its footprint, a square around its
+    centre; the middle of that region along x and along y is the centre whatever the
+    footprint's and the target's size (`_footprint_middle`).
+
+    Args:
+        hits: (n, res, res) row-major, from `target_hits`.
+        target_deg: (n, 2) the target's direction (x_deg, y_deg) in each frame.
+
+    Raises:
+        ValueError: a zone that never saw the target, or saw it at the edge of the recording.
+    """
+    hits = np.asarray(hits, bool)
+    target = np.asarray(target_deg, float)
+    if target.shape != (hits.shape[0], 2):
+        raise ValueError(f"target_deg has shape {target.shape}; expected {(hits.shape[0], 2)}")
+    res = hits.shape[1]
+    centres = np.empty((res, res, 2))
+    for r in range(res):
+        for c in range(res):
+            hit = hits[:, r, c]
+            if not hit.any():
+                raise ValueError(f"zone {(r, c)} (row-major) never reported the target: step "
+                                 f"it over the whole field of view")
+            centres[r, c, 0] = _footprint_middle(target[:, 0], target[:, 1], hit, "x", (r, c))
+            centres[r, c, 1] = _footprint_middle(target[:, 1], target[:, 0], hit, "y", (r, c))
+    return ZoneDirectionFit(centres.reshape(-1), hits.sum(axis=0))
+
+
+# --- The mixed-zone rule from a board edge swept across the field of view --------------------
+
+#: What a zone reports in an edge sweep: nothing, the near board, the far board, or one target
+#: merged from both (status 9); -1 where a frame's status says none of these.
+NONE, NEAR, FAR, MERGED = 0, 1, 2, 3
+OUTCOMES = ("none", "near", "far", "merged")
+
+
+def edge_scene_depths(geometry: ZoneGeometry, subsamples: int, edge_deg: float,
+                      near_mm: float, far_mm: float) -> np.ndarray:
+    """(res, res, k, k) perpendicular depths, metres, row-major, over each zone's sub-samples
+    of a near board covering the angles x >= `edge_deg` in front of a far board."""
+    ax = geometry.sub_angles_xy_rad(subsamples)[..., 0]
+    return np.where(ax >= math.radians(edge_deg), near_mm, far_mm) / 1000.0
+
+
+def near_share(geometry: ZoneGeometry, subsamples: int, edge_deg: np.ndarray) -> np.ndarray:
+    """(n, res, res) share of each zone's sub-samples on the near board, per edge angle."""
+    ax = geometry.sub_angles_xy_rad(subsamples)[..., 0]
+    edge = np.radians(np.asarray(edge_deg, float))[:, None, None, None, None]
+    return (ax[None] >= edge).mean(axis=(-2, -1))
+
+
+def outcomes(distance_mm: np.ndarray, status: np.ndarray, near_mm: np.ndarray,
+             far_mm: np.ndarray) -> np.ndarray:
+    """What each reading says (NONE, NEAR, FAR or MERGED; -1 for other statuses): status 9 is
+    a merged target, status 5 the board whose depth it is nearer."""
+    near = np.asarray(near_mm, float)
+    far = np.asarray(far_mm, float)
+    nearer = np.abs(distance_mm - near) < np.abs(distance_mm - far)
+    out = np.full(np.shape(status), -1, np.int8)
+    out[status == STATUS_NO_TARGET] = NONE
+    out[(status == STATUS_VALID) & nearer] = NEAR
+    out[(status == STATUS_VALID) & ~nearer] = FAR
+    out[status == STATUS_MERGED] = MERGED
+    return out
+
+
+@dc.dataclass(frozen=True)
+class EdgeSteps:
+    """An edge sweep reduced to one observation per edge position and zone.
+
+    Attributes:
+        edge_deg, near_mm, far_mm: (m,) the geometry of each step.
+        observed: (m, res, res) the outcome most of the step's frames report (-1 where no
+            frame's status says).
+        merged_mm: (m, res, res) mean depth of the frames reporting a merged target (NaN where
+            none does).
+    """
+
+    edge_deg: np.ndarray
+    near_mm: np.ndarray
+    far_mm: np.ndarray
+    observed: np.ndarray
+    merged_mm: np.ndarray
+
+
+def edge_steps(distance_mm: np.ndarray, status: np.ndarray, edge_deg: np.ndarray,
+               near_mm: np.ndarray, far_mm: np.ndarray) -> EdgeSteps:
+    """Groups an edge sweep's frames (row-major, with each frame's geometry) by step."""
+    geometry = np.stack([np.asarray(v, float) for v in (edge_deg, near_mm, far_mm)], axis=-1)
+    steps, index = np.unique(geometry, axis=0, return_inverse=True)
+    seen = outcomes(distance_mm, status, geometry[:, 1, None, None], geometry[:, 2, None, None])
+    votes = np.zeros((len(steps), *status.shape[1:], len(OUTCOMES)))
+    for o in range(len(OUTCOMES)):
+        np.add.at(votes[..., o], index.ravel(), seen == o)
+    merged = seen == MERGED
+    total = np.zeros(votes.shape[:-1])
+    np.add.at(total, index.ravel(), np.where(merged, distance_mm, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        merged_mm = total / votes[..., MERGED]
+    observed = np.where(votes.sum(axis=-1) > 0, votes.argmax(axis=-1), -1)
+    return EdgeSteps(steps[:, 0], steps[:, 1], steps[:, 2], observed, merged_mm)
+
+
+def predict_edge(steps: EdgeSteps, params: SensorModelParams, behaviour: DeviceBehaviour
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """What the model (`params`, `behaviour`; its noise left out) reports at each step:
+    (outcomes, depths in mm), each (m, res, res) row-major."""
+    params = dc.replace(params, noise=NoiseModel(0.0, 0.0))
+    geometry, k = params.geometry, params.subsamples
+    rng = np.random.default_rng(0)  # draws multiplied by a zero sigma: unused
+    depth, status = [], []
+    for e, n, f in zip(steps.edge_deg, steps.near_mm, steps.far_mm, strict=True):
+        frame = device_readings(edge_scene_depths(geometry, k, e, n, f), params, behaviour, rng)
+        depth.append(geometry.to_row_major(frame.distance_mm))
+        status.append(geometry.to_row_major(frame.status))
+    depth, status = np.array(depth, float), np.array(status)
+    return outcomes(depth, status, steps.near_mm[:, None, None],
+                    steps.far_mm[:, None, None]), depth
+
+
+@dc.dataclass(frozen=True)
+class MixedZoneFit:
+    """The model's rule for a zone that sees two surfaces, fitted to an edge sweep.
+
+    Attributes:
+        target_order, merge_mm, merged_depth, min_share: the rule (`SensorConfig`'s fields).
+        merge_bounds_mm: the separations the sweeps bracket merge_mm with: the largest that
+            merged and the smallest that did not (0 and inf where none did or all did).
+        agreement: share of the mixed zones (both boards in the footprint) whose outcome the
+            rule predicts, over every step.
+        zones: mixed zones (zone and step pairs) with an outcome.
+        merged_rms_mm: rms between observed and predicted depth of the merged zones, per
+            `MERGED_DEPTHS` rule (NaN where none merged).
+        candidates: agreement of each (target_order, merge_mm) rule tried.
+        warning: set when the sweeps do not pin a parameter down.
+    """
+
+    target_order: str
+    merge_mm: float
+    merged_depth: str
+    min_share: float
+    merge_bounds_mm: tuple[float, float]
+    agreement: float
+    zones: int
+    merged_rms_mm: dict[str, float]
+    candidates: dict[tuple[str, float], float]
+    warning: str = ""
+
+
+def _fit_min_share(share: np.ndarray, observed: np.ndarray, default: float) -> float:
+    """The share above which a zone reports the near board, from zones that report either
+    board alone: the threshold between two observed shares that misclassifies fewest."""
+    keep = (observed == NEAR) | (observed == FAR)
+    s, near = share[keep], observed[keep] == NEAR
+    if not (near.any() and (~near).any()):
+        return default
+    levels = np.unique(s)
+    cuts = np.concatenate([[levels[0] / 2], (levels[:-1] + levels[1:]) / 2,
+                           [(levels[-1] + 1) / 2]])
+    errors = [np.sum(near != (s >= t)) for t in cuts]
+    return float(cuts[int(np.argmin(errors))])
+
+
+def fit_mixed_zone_rule(steps: EdgeSteps, params: SensorModelParams) -> MixedZoneFit:
+    """The model's rule (target order, merge distance, merged depth, min_share) that predicts
+    most of the mixed zones' outcomes in an edge sweep.
+
+    Every rule the sweeps can tell apart is tried with the model's own reduction
+    (`predict_edge` on `edge_scene_depths`, the zones' sub-samples being near or far by the
+    known edge): the nearest surface holding `min_share` (fitted as the share where zones turn
+    to the near board), or the closest or strongest target with surfaces merging below each
+    merge distance the sweeps' separations bracket. Agreement counts only zones whose
+    sub-samples see both boards: the rest say nothing about mixing. Among rules that merge,
+    the merged depth is the one nearest the observed merged depths.
+
+    Args:
+        steps: from `edge_steps`, row-major.
+        params: the model: zone geometry (calibrated directions where known), sub-samples,
+            surface gap; its `min_share` where the sweeps cannot fit it.
+    """
+    geometry, k = params.geometry, params.subsamples
+    share = near_share(geometry, k, steps.edge_deg)
+    mixed = (share > 0) & (share < 1) & (steps.observed >= 0)
+    if not mixed.any():
+        raise ValueError("no zone saw both boards in the edge sweep: sweep the edge across "
+                         "the field of view")
+    separations = np.unique(steps.far_mm - steps.near_mm)
+    if separations[0] <= 0:
+        raise ValueError("the edge sweep's near board must be nearer than its far board")
+    merges = [0.0, *((separations[:-1] + separations[1:]) / 2).tolist(),
+              1.5 * float(separations[-1])]
+    min_share = _fit_min_share(share[mixed], steps.observed[mixed], params.min_share)
+    candidates, predictions = {}, {}
+    rules = [("closest", 0.0)] + [(order, m) for order in ("closest", "strongest")
+                                  for m in merges if (order, m) != ("closest", 0.0)]
+    model = dc.replace(params, min_share=min_share)
+    for order, m in rules:  # at the default merged depth: the outcomes do not depend on it
+        predictions[(order, m)] = predict_edge(steps, model, DeviceBehaviour(target_order=order,
+                                                                             merge_mm=m))
+        candidates[(order, m)] = float(np.mean(predictions[(order, m)][0][mixed]
+                                               == steps.observed[mixed]))
+    order, merge = max(rules, key=lambda r: candidates[r])  # the first best: simplest
+    rms = {}
+    predicted, default_depth = predictions[(order, merge)]
+    both = mixed & (steps.observed == MERGED) & (predicted == MERGED)
+    for rule in MERGED_DEPTHS:
+        if merge == 0 or not both.any():
+            rms[rule] = math.nan
+            continue
+        depth = (default_depth if rule == DeviceBehaviour().merged_depth else predict_edge(
+            steps, model, DeviceBehaviour(target_order=order, merge_mm=merge,
+                                          merged_depth=rule))[1])
+        rms[rule] = float(np.sqrt(np.mean((depth[both] - steps.merged_mm[both]) ** 2)))
+    merged_depth = (min(MERGED_DEPTHS, key=lambda r: rms[r]) if both.any() and merge > 0
+                    else MERGED_DEPTHS[0])
+    below = separations[separations < merge]
+    above = separations[separations > merge]
+    bounds = (float(below.max()) if below.size else 0.0,
+              float(above.min()) if above.size else math.inf)
+    warning = ""
+    if merge > separations[-1]:
+        warning = (f"every sweep merged: merge_mm is only known to exceed {separations[-1]:.0f} "
+                   f"mm; sweep with a larger separation of the boards")
+    elif merge > 0 and not both.any():
+        warning = "no merged zone to fit merged_depth with"
+    return MixedZoneFit(order, float(merge), merged_depth, min_share, bounds,
+                        candidates[(order, merge)], int(mixed.sum()), rms, candidates, warning)
