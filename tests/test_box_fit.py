@@ -1,14 +1,25 @@
 """The sensor-model box fit (core/box_fit.py) on readings rendered by the simulated cell: Drake's
 renderer and the simulated device, not the estimator's own ray caster, make the data."""
 
+import math
+
 import numpy as np
 import pytest
 
-from lrnbv_drake.core.box_fit import BoxEstimator, fit_box, predicted_depths, zone_rays
+from lrnbv_drake.core.box_fit import (
+    BoxEstimator,
+    BoxFitParams,
+    _Edges,
+    _SideSearch,
+    _through,
+    fit_box,
+    predicted_depths,
+    zone_rays,
+)
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.metrics import true_box
 from lrnbv_drake.core.poses import look_at
-from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame
+from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame, nearest_cluster_depth
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import sensor_params
 from lrnbv_drake.station.scenario import load_scenario
@@ -102,3 +113,67 @@ def test_no_reading_near_the_box_gives_no_fit():
     frame = ToFFrame(np.full((8, 8), 500), np.full((8, 8), 5), np.zeros((8, 8)))
     box = OrientedBox(np.array([0.0, 0.0, 0.05]), np.array([0.2, 0.1, 0.1]), 0.0)
     assert fit_box(zone_rays(frame, away, model), box, 0.0, model) is None
+
+
+def _reference_depths(rays, x, floor, table):
+    """(n, m) sub-ray depths on box x standing on z = floor, then the table plane z = table
+    (None: no table), cast in numpy: the slab test written out independently of the kernel."""
+    c, s = math.cos(x[2]), math.sin(x[2])  # as the kernel: libm, not numpy's SIMD
+    px, py = rays.origins[:, None, 0] - x[0], rays.origins[:, None, 1] - x[1]
+    o = np.stack(np.broadcast_arrays(c * px + s * py, -s * px + c * py,
+                                     rays.origins[:, None, 2] - floor - abs(x[5]) / 2), -1)
+    d = rays.directions
+    d = np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], -1)
+    half = np.abs(x[3:]) / 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (-half - o) / d, (half - o) / d
+        inside = np.abs(o) <= half
+        near = np.where(d == 0, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2)).max(-1)
+        far = np.where(d == 0, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2)).min(-1)
+        t = np.where((near <= far) & (far > 0), np.maximum(near, 0.0), np.inf)
+        if table is not None:
+            t_table = (table - rays.origins[:, None, 2]) / d[..., 2]
+            t = np.where((d[..., 2] < 0) & (t_table > 0) & (t_table < t), t_table, t)
+    return t
+
+
+def _reference_costs(rays, x, model, params):
+    """The zone costs as numpy steps: the simulator's own cluster reduction, soft-L1."""
+    if np.any(x[3:] <= 0):
+        return np.full(len(rays), np.inf)
+    predicted = nearest_cluster_depth(_reference_depths(rays, x, 0.0, 0.0), model)
+    r = (rays.measured - predicted) / rays.sigma
+    z = (np.where(np.isnan(r), params.no_return_residual, r) / params.loss_scale) ** 2
+    return 2.0 * (np.sqrt(1.0 + z) - 1.0) * params.loss_scale ** 2
+
+
+def test_the_cost_kernel_equals_numpy_steps_on_random_boxes():
+    """The search's batched kernel (insertion sort from each zone's previous order, rotated
+    sub-rays shared across a grid) against the cost computed in numpy, bit for bit: the grid
+    search compares sums of piecewise-constant costs, so a last-bit change could pick another
+    step. Random boxes near the truth, flat ones among them, over zone subsets."""
+    model, params = SensorModelParams(), BoxFitParams()
+    truth = np.array([0.01, -0.02, 0.3, 0.3, 0.2, 0.12])
+    rng, rays = np.random.default_rng(0), None
+    for eye in ([0.0, 0.0, 0.45], [0.3, 0.1, 0.3], [-0.2, -0.3, 0.35], [0.05, 0.35, 0.25]):
+        X_WS = look_at(np.array(eye), truth[:3] * [1, 1, 0])
+        frame = ToFFrame(np.full((8, 8), 1), np.full((8, 8), 5), np.zeros((8, 8)))
+        depth = predicted_depths(zone_rays(frame, X_WS, model), truth, 0.0, model)
+        reading = np.rint(1000 * depth + rng.normal(0, 5, 64)).reshape(8, 8)
+        ok = np.isfinite(reading)
+        frame = ToFFrame(np.where(ok, reading, 0), np.where(ok, 5, 255), np.zeros((8, 8)))
+        more = zone_rays(frame, X_WS, model)
+        rays = more if rays is None else rays.extend(more)
+    start = OrientedBox(np.r_[truth[:2], 0.06], truth[3:], truth[2])
+    search = _SideSearch(rays, _Edges(start), 0.0, model, params)
+    for _ in range(12):
+        ps = search.edges.p0 + rng.normal(0, [0.01, 0.01, 0.01, 0.01, 0.01, 0.05], (5, 6))
+        ps[rng.random(5) < 0.2, 4] = -0.01  # a flat box
+        ps[:3, 5] = ps[0, 5]  # a shared yaw, as in a side's grid
+        zones = np.flatnonzero(rng.random(len(rays)) < 0.5)
+        got = search.zone_costs(ps, zones)
+        for p, row in zip(ps, got, strict=True):
+            x = search.edges.to_x(p)
+            np.testing.assert_array_equal(row, _reference_costs(rays, x, model, params)[zones])
+            through = np.isfinite(_reference_depths(rays, x, -0.02, None)).any(-1)
+            np.testing.assert_array_equal(_through(rays, x, -0.02), through)

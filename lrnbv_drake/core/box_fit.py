@@ -34,7 +34,13 @@ import numba
 import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
-from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame, cluster_median, cluster_rule
+from lrnbv_drake.core.sensor import (
+    SensorModelParams,
+    ToFFrame,
+    cluster_median,
+    cluster_rule,
+    sorted_cluster_median,
+)
 
 
 @dc.dataclass(frozen=True)
@@ -129,40 +135,135 @@ def zone_rays(frame: ToFFrame, X_WS: np.ndarray, model: SensorModelParams) -> Zo
 
 
 @numba.njit(cache=True)
-def _predict_kernel(origins, directions, x, floor, table, min_count, gap_m, slope, out):
-    """`predicted_depths` zone by zone: each sub-ray's first hit on the box standing on z =
-    floor (slab test in the box frame) or on the table plane z = table (none if NaN), then
-    the device's cluster rule."""
-    cx, cy, yaw = x[0], x[1], x[2]
-    hx, hy, hz = abs(x[3]) / 2, abs(x[4]) / 2, abs(x[5]) / 2
-    c, s = math.cos(yaw), math.sin(yaw)
+def _box_frame_origin(origins, i, x, floor, c, s):
+    """Zone i's sensor origin in the frame of box x (centred, axes along its sides) standing on
+    z = floor, and the box's half sizes."""
+    px, py = origins[i, 0] - x[0], origins[i, 1] - x[1]
+    hz = abs(x[5]) / 2
+    return (c * px + s * py, -s * px + c * py, origins[i, 2] - floor - hz,
+            abs(x[3]) / 2, abs(x[4]) / 2, hz)
+
+
+@numba.njit(cache=True)
+def _rotate(directions, i, c, s, d0, d1):
+    """Zone i's sub-ray directions along the box's x and y axes (z is the world's)."""
+    for j in range(directions.shape[1]):
+        dx, dy = directions[i, j, 0], directions[i, j, 1]
+        d0[j], d1[j] = c * dx + s * dy, -s * dx + c * dy
+
+
+@numba.njit(cache=True)
+def _slab_axis(o, h, d, t_near, t_far):
+    """[t_near, t_far] narrowed to where the ray o + t d lies within |p| <= h on one axis."""
+    if d == 0.0:
+        if abs(o) > h:
+            return np.inf, -np.inf
+        return t_near, t_far
+    t1, t2 = (-h - o) / d, (h - o) / d
+    return max(t_near, min(t1, t2)), min(t_far, max(t1, t2))
+
+
+@numba.njit(cache=True)
+def _first_hit(o0, o1, o2, h0, h1, h2, d0, d1, d2):
+    """Depth t of the first point of the box |p_a| <= h_a on the ray o + t d (box frame): 0
+    from inside, inf if the ray misses it (slab test)."""
+    t_near, t_far = _slab_axis(o0, h0, d0, -np.inf, np.inf)
+    t_near, t_far = _slab_axis(o1, h1, d1, t_near, t_far)
+    t_near, t_far = _slab_axis(o2, h2, d2, t_near, t_far)
+    return max(t_near, 0.0) if t_near <= t_far and t_far > 0.0 else np.inf
+
+
+@numba.njit(cache=True)
+def _table_depths(origins, directions, i, table, out):
+    """Each of zone i's sub-rays' depth to the table plane z = table; inf if it never gets
+    there. Constant while a box is fitted, so computed once per zone and call."""
+    for j in range(directions.shape[1]):
+        out[j] = np.inf
+        if directions[i, j, 2] < 0.0:
+            t = (table - origins[i, 2]) / directions[i, j, 2]
+            if t > 0.0:
+                out[j] = t
+
+
+@numba.njit(cache=True)
+def _zone_depths(origins, directions, i, x, floor, c, s, d0, d1, table_t, depths):
+    """Zone i's sub-ray depths: the first hit on box x standing on z = floor, or the table
+    (`table_t`) where nearer; `d0`, `d1` from `_rotate` at x's yaw."""
+    o0, o1, o2, h0, h1, h2 = _box_frame_origin(origins, i, x, floor, c, s)
+    for j in range(directions.shape[1]):
+        t = _first_hit(o0, o1, o2, h0, h1, h2, d0[j], d1[j], directions[i, j, 2])
+        depths[j] = table_t[j] if table_t[j] < t else t
+
+
+@numba.njit(cache=True)
+def _predict_kernel(origins, directions, x, table, min_count, gap_m, slope, out):
+    """`predicted_depths` zone by zone: the box's sub-ray depths reduced by the device's
+    cluster rule."""
     m = directions.shape[1]
-    depths = np.empty(m)
-    half = np.array([hx, hy, hz])
-    o = np.empty(3)
-    d = np.empty(3)
+    d0, d1, table_t, depths = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    c, s = math.cos(x[2]), math.sin(x[2])
     for i in range(origins.shape[0]):
-        px, py = origins[i, 0] - cx, origins[i, 1] - cy
-        o[0], o[1], o[2] = c * px + s * py, -s * px + c * py, origins[i, 2] - floor - hz
-        for j in range(m):
-            dx, dy = directions[i, j, 0], directions[i, j, 1]
-            d[0], d[1], d[2] = c * dx + s * dy, -s * dx + c * dy, directions[i, j, 2]
-            t_near, t_far = -np.inf, np.inf
-            for a in range(3):
-                if d[a] == 0.0:
-                    if abs(o[a]) > half[a]:
-                        t_near, t_far = np.inf, -np.inf
-                else:
-                    t1, t2 = (-half[a] - o[a]) / d[a], (half[a] - o[a]) / d[a]
-                    t_near = max(t_near, min(t1, t2))
-                    t_far = min(t_far, max(t1, t2))
-            t = max(t_near, 0.0) if t_near <= t_far and t_far > 0.0 else np.inf
-            if d[2] < 0.0 and not math.isnan(table):
-                t_table = (table - origins[i, 2]) / d[2]
-                if 0.0 < t_table < t:
-                    t = t_table
-            depths[j] = t
+        _rotate(directions, i, c, s, d0, d1)
+        _table_depths(origins, directions, i, table, table_t)
+        _zone_depths(origins, directions, i, x, table, c, s, d0, d1, table_t, depths)
         out[i] = cluster_median(depths, min_count, gap_m, slope)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _costs_kernel(origins, directions, measured, sigma, zones, xs, table, min_count, gap_m,
+                  slope, loss_scale, loss_scale_sq, no_return, order, out):
+    """out[n, k]: the soft-L1 cost of zone zones[k]'s residual in model sigmas (`no_return`
+    where no cluster is sizeable, inf for a flat box) for box xs[n], every candidate of a grid
+    in one call. Zone by zone, so what only the zone fixes (the table depths, the
+    rotated sub-rays while the yaw stays) is computed once; each zone's samples are sorted by
+    insertion starting from `order[i]`, the order of its previous evaluation, which a small
+    step of the box barely changes (a sort of nearly sorted samples is about linear)."""
+    m = directions.shape[1]
+    d0, d1, table_t, depths = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    ordered = np.empty(m)
+    for k in range(zones.shape[0]):
+        i = zones[k]
+        _table_depths(origins, directions, i, table, table_t)
+        yaw, c, s = np.nan, 1.0, 0.0
+        for n in range(xs.shape[0]):
+            x = xs[n]
+            if x[3] <= 0.0 or x[4] <= 0.0 or x[5] <= 0.0:  # a flat box
+                out[n, k] = np.inf
+                continue
+            if x[2] != yaw:
+                yaw = x[2]
+                c, s = math.cos(yaw), math.sin(yaw)
+                _rotate(directions, i, c, s, d0, d1)
+            _zone_depths(origins, directions, i, x, table, c, s, d0, d1, table_t, depths)
+            for j in range(m):
+                ordered[j] = depths[order[i, j]]
+            for j in range(1, m):
+                v, index = ordered[j], order[i, j]
+                a = j - 1
+                while a >= 0 and ordered[a] > v:
+                    ordered[a + 1], order[i, a + 1] = ordered[a], order[i, a]
+                    a -= 1
+                ordered[a + 1], order[i, a + 1] = v, index
+            r = (measured[i] - sorted_cluster_median(ordered, min_count, gap_m, slope)) / sigma[i]
+            if math.isnan(r):
+                r = no_return
+            q = r / loss_scale
+            out[n, k] = 2.0 * (math.sqrt(1.0 + q * q) - 1.0) * loss_scale_sq
+
+
+@numba.njit(cache=True)
+def _crosses_kernel(origins, directions, x, floor, out):
+    """out[i]: a sub-ray of zone i passes through box x standing on z = floor."""
+    c, s = math.cos(x[2]), math.sin(x[2])
+    for i in range(origins.shape[0]):
+        o0, o1, o2, h0, h1, h2 = _box_frame_origin(origins, i, x, floor, c, s)
+        out[i] = False
+        for j in range(directions.shape[1]):
+            dx, dy = directions[i, j, 0], directions[i, j, 1]
+            if _first_hit(o0, o1, o2, h0, h1, h2, c * dx + s * dy, -s * dx + c * dy,
+                          directions[i, j, 2]) < np.inf:
+                out[i] = True
+                break
 
 
 def predicted_depths(rays: ZoneRays, x: np.ndarray, table_height: float,
@@ -171,20 +272,8 @@ def predicted_depths(rays: ZoneRays, x: np.ndarray, table_height: float,
     standing on the table plane; NaN where no surface cluster is sizeable."""
     out = np.empty(len(rays))
     _predict_kernel(rays.origins, rays.directions, np.asarray(x, float), float(table_height),
-                    float(table_height), *cluster_rule(model, rays.directions.shape[1]), out)
+                    *cluster_rule(model, rays.directions.shape[1]), out)
     return out
-
-
-def _zone_costs(x: np.ndarray, rays: ZoneRays, table_height: float,
-                model: SensorModelParams, params: BoxFitParams) -> np.ndarray:
-    """(n,) each zone's soft-L1 cost of its residual in model sigmas; inf for a flat box."""
-    if np.any(np.asarray(x[3:]) <= 0):
-        return np.full(len(rays), np.inf)
-    predicted = predicted_depths(rays, x, table_height, model)
-    r = (rays.measured - predicted) / rays.sigma
-    r = np.where(np.isnan(r), params.no_return_residual, r)
-    z = (r / params.loss_scale) ** 2
-    return 2.0 * (np.sqrt(1.0 + z) - 1.0) * params.loss_scale ** 2
 
 
 def _as_vector(box: OrientedBox) -> np.ndarray:
@@ -202,11 +291,10 @@ def near_box(rays: ZoneRays, box: OrientedBox, table_height: float, margin: floa
 
 
 def _through(rays: ZoneRays, x: np.ndarray, floor: float) -> np.ndarray:
-    """(n,) zones with a sub-ray through box x standing on z = floor, whatever lies in front
-    (no table; a cluster of one sub-ray counts)."""
-    first_hit = np.empty(len(rays))
-    _predict_kernel(rays.origins, rays.directions, x, floor, np.nan, 1, np.inf, 0.0, first_hit)
-    return np.isfinite(first_hit)
+    """(n,) zones with a sub-ray through box x standing on z = floor, whatever lies in front."""
+    out = np.empty(len(rays), bool)
+    _crosses_kernel(rays.origins, rays.directions, x, floor, out)
+    return out
 
 
 class _Edges:
@@ -230,34 +318,51 @@ class _Edges:
 class _SideSearch:
     """A coordinate grid search over `_Edges` coordinates that re-evaluates, for each side or
     the top, only the zones whose sub-rays cross the slab it sweeps: the others' predictions
-    cannot change, so their cost is carried over (about a fifth of the zones a side)."""
+    cannot change, so their cost is carried over (about a fifth of the zones a side). A grid's
+    candidates are evaluated in one kernel call."""
 
     def __init__(self, rays: ZoneRays, edges: _Edges, table_height: float,
                  model: SensorModelParams, params: BoxFitParams) -> None:
         self.rays, self.edges, self.table = rays, edges, table_height
-        self.model, self.params = model, params
+        self.params = params
+        m = rays.directions.shape[1]
+        self._rule = cluster_rule(model, m)
+        self._all = np.arange(len(rays))
+        # Each zone's samples in the order its last evaluation sorted them (see _costs_kernel).
+        self._order = np.tile(np.arange(m), (len(rays), 1))
         self.evaluations = 0
 
-    def zone_costs(self, p: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
-        self.evaluations += 1
-        rays = self.rays if keep is None else self.rays.take(keep)
-        return _zone_costs(self.edges.to_x(p), rays, self.table, self.model, self.params)
+    def zone_costs(self, ps: Sequence[np.ndarray], zones: np.ndarray | None = None
+                   ) -> np.ndarray:
+        """(len(ps), len(zones)) each zone's cost (`_costs_kernel`) for each coordinate vector
+        in `ps`; all zones by default."""
+        self.evaluations += len(ps)
+        zones = self._all if zones is None else zones
+        xs = np.array([self.edges.to_x(p) for p in ps])
+        out = np.empty((len(ps), len(zones)))
+        r, params = self.rays, self.params
+        _costs_kernel(r.origins, r.directions, r.measured, r.sigma, zones, xs, self.table,
+                      *self._rule, params.loss_scale, params.loss_scale ** 2,
+                      params.no_return_residual, self._order, out)
+        return out
 
     def cost(self, p: np.ndarray) -> float:
-        return float(np.sum(self.zone_costs(p)))
+        return float(np.sum(self.zone_costs([p])[0]))
 
     def _swept(self, p: np.ndarray, index: int, grid: np.ndarray) -> np.ndarray | None:
-        """Zones whose sub-rays cross the slab coordinate `index` sweeps over `grid`; None
-        (all) for the yaw, which moves every side."""
+        """Indices of the zones whose sub-rays cross the slab coordinate `index` sweeps over
+        `grid`; None (all) for the yaw, which moves every side."""
         if index == 5:
             return None
         q = p.copy()
         lo, hi = float(grid.min()), float(grid.max())
         if index == 4:
-            return _through(self.rays, self.edges.to_x(np.r_[q[:4], hi - lo, q[5]]),
-                            self.table + lo)
-        q[index - index % 2], q[index - index % 2 + 1] = lo, hi
-        return _through(self.rays, self.edges.to_x(q), self.table)
+            through = _through(self.rays, self.edges.to_x(np.r_[q[:4], hi - lo, q[5]]),
+                               self.table + lo)
+        else:
+            q[index - index % 2], q[index - index % 2 + 1] = lo, hi
+            through = _through(self.rays, self.edges.to_x(q), self.table)
+        return np.flatnonzero(through)
 
     def run(self, p: np.ndarray, spans: np.ndarray, steps: np.ndarray, max_sweeps: int
             ) -> tuple[np.ndarray, float]:
@@ -266,7 +371,7 @@ class _SideSearch:
         grid does not stall on the flat steps of a sub-sampled objective, where simplex and
         line searches do."""
         p = p.copy()
-        costs = self.zone_costs(p)
+        costs = self.zone_costs([p])[0]
         for _ in range(max_sweeps):
             improved = False
             for i in range(len(p)):
@@ -275,20 +380,20 @@ class _SideSearch:
                     grid = p[i] + np.arange(-span, span + step / 2, step)
                     keep = self._swept(p, i, grid)
                     now = costs if keep is None else costs[keep]
-                    best_j, best_sum, best_costs = -1, float(np.sum(now)) - 1e-9, None
-                    for j, g in enumerate(grid):
-                        q = p.copy()
-                        q[i] = g
-                        trial = self.zone_costs(q, keep)
+                    best_j, best_sum = -1, float(np.sum(now)) - 1e-9
+                    candidates = np.repeat(p[None], len(grid), axis=0)
+                    candidates[:, i] = grid
+                    trials = self.zone_costs(candidates, keep)
+                    for j, trial in enumerate(trials):
                         total = float(np.sum(trial))
                         if total < best_sum:
-                            best_j, best_sum, best_costs = j, total, trial
+                            best_j, best_sum = j, total
                     if best_j >= 0:
                         p[i] = grid[best_j]
                         if keep is None:
-                            costs = best_costs
+                            costs = trials[best_j]
                         else:
-                            costs[keep] = best_costs
+                            costs[keep] = trials[best_j]
                         improved = True
             if not improved:
                 break

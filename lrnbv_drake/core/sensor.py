@@ -341,6 +341,14 @@ def cluster_median(depths: np.ndarray, min_count: int, gap_m: float, slope: floa
     cluster breaks where the next sample is deeper by more than max(gap_m, slope * depth);
     NaN if no cluster is that big."""
     depths.sort()
+    return sorted_cluster_median(depths, min_count, gap_m, slope)
+
+
+@numba.njit(cache=True)
+def sorted_cluster_median(depths: np.ndarray, min_count: int, gap_m: float, slope: float
+                          ) -> float:
+    """`cluster_median` of samples already sorted ascending: the box fit keeps each zone's
+    samples nearly in order from one evaluation to the next, which sorts far faster itself."""
     m = depths.shape[0]
     start = 0
     while start < m and math.isfinite(depths[start]):
