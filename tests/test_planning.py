@@ -125,7 +125,7 @@ def test_best_branch_maximises_the_summed_utility():
 
 
 def _policy(**kwargs):
-    params = PlannerParams(samples_per_iteration=10, **kwargs)
+    params = PlannerParams(samples_per_iteration=10, **{"travel_discount": 0.0, **kwargs})
     workspace = AlignedBox(np.array([0.0, -0.5, 0.2]), np.array([0.8, 0.5, 0.7]))
     return LrNbvPolicy(params, ZoneGeometry(), workspace,
                        ik=lambda poses, q: [np.zeros((1, 6))] * len(poses),

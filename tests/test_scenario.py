@@ -116,11 +116,14 @@ def test_an_override_replaces_only_the_fields_it_names():
         override(base, {"robot": {"speed": 1}})
 
 
-def test_the_paper_preset_sets_the_papers_estimator_and_stop_and_nothing_else():
+def test_the_paper_preset_sets_the_papers_estimator_stop_and_utility_and_nothing_else():
     paper, product = preset("paper"), preset(None)
-    assert (paper.extraction.estimator, paper.planner.stop.rule) == ("cells", "paper")
-    assert (product.extraction.estimator, product.planner.stop.rule) == ("model", "box")
+    assert (paper.extraction.estimator, paper.planner.stop.rule,
+            paper.planner.travel_discount) == ("cells", "paper", 0.0)
+    assert (product.extraction.estimator, product.planner.stop.rule,
+            product.planner.travel_discount) == ("model", "box", 0.6)
     paper.extraction.estimator, paper.planner.stop.rule = "model", "box"
+    paper.planner.travel_discount = 0.6
     assert yaml_dump_typed(paper) == yaml_dump_typed(product)
     with pytest.raises(ScenarioError, match="unknown preset 'papers'"):
         preset("papers")

@@ -334,7 +334,8 @@ def check_against_schema(data: typing.Any, schema: type, path: str = "") -> None
 #: configuration where the product's defaults differ from it (docs/results.md measures both):
 #: the box around the occupied map cells, and Algorithm 1's line 24 as the only stop.
 PRESETS: dict[str, str] = {
-    "paper": "{extraction: {estimator: cells}, planner: {stop: {rule: paper}}}",
+    "paper": ("{extraction: {estimator: cells}, planner: {stop: {rule: paper}, "
+              "travel_discount: 0.0}}"),
 }
 
 
