@@ -1,4 +1,5 @@
-"""Milliseconds per simulated VL53L8CX frame: render + reduction, and each alone.
+"""Milliseconds per simulated VL53L8CX frame: render + reduction, and each alone; and the
+`datasheet` device's reduction (core/tof_device.py) against the ideal one in the same run.
 
 The scene is a tabletop one as the NBV loop sees it: a table, a box on it 0.3-0.5 m from the
 sensor, and a wall behind, viewed from 0.4 m above the table looking down 45 degrees. Target:
@@ -24,6 +25,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from lrnbv_drake.core.sensor import SensorModelParams, frame_rng, zone_readings
+from lrnbv_drake.core.tof_device import PROFILES, device_readings, illumination_weight
 from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer, sample_zone_depths
 
 # Sensor 0.4 m above the table top, optical axis pitched 45 degrees down towards +x.
@@ -74,9 +76,21 @@ def main() -> None:
         sub_depth_m = sample_zone_depths(image, camera, params)
         zone_readings(sub_depth_m, params, frame_rng(0, n), n)
 
+    datasheet = PROFILES["datasheet"].behaviour
+    angles = params.geometry.sub_angles_xy_rad(params.subsamples)
+    weight = illumination_weight(angles[..., 0], angles[..., 1])
+    rho = np.full(weight.shape, 0.5)
+
+    def reduce_datasheet(n: int) -> None:
+        sub_depth_m = sample_zone_depths(image, camera, params)
+        device_readings(sub_depth_m, params, datasheet, frame_rng(0, n), reflectance=rho,
+                        weight=weight, sequence=n)
+
+    reduce_datasheet(1)  # compiles the numba kernel
     capture = _median_ms(lambda n: dut.CaptureFrame(context, n), args.frames)
     render = _median_ms(lambda n: query_object.RenderDepthImage(camera, world, X_WS), args.frames)
     reduction = _median_ms(reduce, args.frames)
+    reduction_datasheet = _median_ms(reduce_datasheet, args.frames)
 
     period = 1 / 15
     start = time.perf_counter()
@@ -94,6 +108,8 @@ def main() -> None:
     print(f"  frame (render + reduction): {capture:6.2f} ms   target < 15 ms")
     print(f"    render:                   {render:6.2f} ms")
     print(f"    reduction:                {reduction:6.2f} ms")
+    print(f"    datasheet reduction:      {reduction_datasheet:6.2f} ms   "
+          f"({reduction_datasheet / reduction:.1f}x the ideal one)")
     print(f"  in a Simulator at 15 Hz:    {in_simulator:6.2f} ms per frame (mean)")
     print(
         f"  scene check: {int(frame.valid.sum())}/{frame.valid.size} zones valid, "
