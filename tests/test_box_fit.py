@@ -177,3 +177,23 @@ def test_the_cost_kernel_equals_numpy_steps_on_random_boxes():
             np.testing.assert_array_equal(row, _reference_costs(rays, x, model, params)[zones])
             through = np.isfinite(_reference_depths(rays, x, -0.02, None)).any(-1)
             np.testing.assert_array_equal(_through(rays, x, -0.02), through)
+
+
+def test_beyond_the_tables_footprint_a_sub_ray_sees_nothing():
+    """The hand-worked view with the table ending at x = 0.15: the zones whose every sub-ray
+    passes beyond it (the columns past x = 0.15 at 0.5 m, +16.7 degrees and more: the last
+    one) report nothing; the box top still reads 0.4 m."""
+    model = SensorModelParams()
+    X_WS = look_at(np.array([0.0, 0.0, 0.5]), np.zeros(3))
+    frame = ToFFrame(np.full((8, 8), 1), np.full((8, 8), 5), np.zeros((8, 8)))
+    rays = zone_rays(frame, X_WS, model)
+    x = np.array([0.0, 0.0, 0.0, 0.2, 0.2, 0.1])
+    params = BoxFitParams(table_extent=(-1.0, -1.0, 0.15, 1.0))
+    depth = predicted_depths(rays, x, 0.0, model, params).reshape(8, 8)
+    endless = predicted_depths(rays, x, 0.0, model).reshape(8, 8)
+    np.testing.assert_allclose(depth[2:6, 2:6], 0.4)
+    beyond = ~np.isclose(depth, endless, equal_nan=True)
+    assert beyond.any()
+    # World x of the view grows along one image axis: every zone that changed is one whose
+    # rays reach past x = 0.15 m, and it reports no sizeable surface.
+    assert np.all(np.isnan(depth[beyond]))

@@ -44,3 +44,22 @@ def test_sensor_looking_down_sees_the_box_top():
     assert np.all(np.abs(centre - 280) <= 4 * sigma + 1)
     np.testing.assert_allclose(dut.GetOutputPort("tof.pose").Eval(context).GetAsMatrix4(),
                                target, atol=1e-9)
+
+
+def test_the_scenarios_table_extent_is_the_shipped_tables_top():
+    """cell.table_extent (the box fit's table) against the table model's top box in
+    SceneGraph."""
+    scenario = Scenario()
+    cell = make_cell(scenario)
+    plant, scene_graph = cell.plant, cell.scene_graph
+    context = cell.diagram.CreateDefaultContext()
+    query = scene_graph.get_query_output_port().Eval(
+        scene_graph.GetMyContextFromRoot(context))
+    inspector = query.inspector()
+    top = plant.GetBodyByName("top", plant.GetModelInstanceByName("table"))
+    (gid,) = [g for g in plant.GetCollisionGeometriesForBody(top)
+              if inspector.GetName(g).endswith("top_collision")]
+    size = np.array([inspector.GetShape(gid).width(), inspector.GetShape(gid).depth()])
+    centre = query.GetPoseInWorld(gid).translation()[:2]
+    np.testing.assert_allclose(scenario.cell.table_extent, [*(centre - size / 2),
+                                                            *(centre + size / 2)], atol=1e-9)

@@ -71,6 +71,14 @@ class BoxFitParams:
     interval_cost: float = 2.71
     interval_floor_m: float = 0.002
     interval_max_m: float = 0.1
+    # The table top's footprint in the world, (x_min, y_min, x_max, y_max), metres: a sub-ray
+    # that passes beyond it sees nothing there. None: an endless table.
+    table_extent: tuple[float, float, float, float] | None = None
+
+    def extent(self) -> np.ndarray:
+        """`table_extent` as the kernels take it, +-inf for an endless table."""
+        return (np.array([-np.inf, -np.inf, np.inf, np.inf]) if self.table_extent is None
+                else np.asarray(self.table_extent, float))
 
 
 @dc.dataclass(frozen=True)
@@ -174,14 +182,17 @@ def _first_hit(o0, o1, o2, h0, h1, h2, d0, d1, d2):
 
 
 @numba.njit(cache=True)
-def _table_depths(origins, directions, i, table, out):
-    """Each of zone i's sub-rays' depth to the table plane z = table; inf if it never gets
-    there. Constant while a box is fitted, so computed once per zone and call."""
+def _table_depths(origins, directions, i, table, extent, out):
+    """Each of zone i's sub-rays' depth to the table top z = table within its footprint
+    `extent` (x_min, y_min, x_max, y_max); inf if it never gets there. Constant while a box
+    is fitted, so computed once per zone and call."""
     for j in range(directions.shape[1]):
         out[j] = np.inf
         if directions[i, j, 2] < 0.0:
             t = (table - origins[i, 2]) / directions[i, j, 2]
-            if t > 0.0:
+            x = origins[i, 0] + t * directions[i, j, 0]
+            y = origins[i, 1] + t * directions[i, j, 1]
+            if t > 0.0 and extent[0] <= x <= extent[2] and extent[1] <= y <= extent[3]:
                 out[j] = t
 
 
@@ -196,7 +207,7 @@ def _zone_depths(origins, directions, i, x, floor, c, s, d0, d1, table_t, depths
 
 
 @numba.njit(cache=True)
-def _predict_kernel(origins, directions, x, table, min_count, gap_m, slope, out):
+def _predict_kernel(origins, directions, x, table, extent, min_count, gap_m, slope, out):
     """`predicted_depths` zone by zone: the box's sub-ray depths reduced by the device's
     cluster rule."""
     m = directions.shape[1]
@@ -204,14 +215,14 @@ def _predict_kernel(origins, directions, x, table, min_count, gap_m, slope, out)
     c, s = math.cos(x[2]), math.sin(x[2])
     for i in range(origins.shape[0]):
         _rotate(directions, i, c, s, d0, d1)
-        _table_depths(origins, directions, i, table, table_t)
+        _table_depths(origins, directions, i, table, extent, table_t)
         _zone_depths(origins, directions, i, x, table, c, s, d0, d1, table_t, depths)
         out[i] = cluster_median(depths, min_count, gap_m, slope)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _costs_kernel(origins, directions, measured, sigma, zones, xs, table, min_count, gap_m,
-                  slope, loss_scale, loss_scale_sq, no_return, order, out):
+def _costs_kernel(origins, directions, measured, sigma, zones, xs, table, extent, min_count,
+                  gap_m, slope, loss_scale, loss_scale_sq, no_return, order, out):
     """out[n, k]: the soft-L1 cost of zone zones[k]'s residual in model sigmas (`no_return`
     where no cluster is sizeable, inf for a flat box) for box xs[n], every candidate of a grid
     in one call. Zone by zone, so what only the zone fixes (the table depths, the
@@ -223,7 +234,7 @@ def _costs_kernel(origins, directions, measured, sigma, zones, xs, table, min_co
     ordered = np.empty(m)
     for k in range(zones.shape[0]):
         i = zones[k]
-        _table_depths(origins, directions, i, table, table_t)
+        _table_depths(origins, directions, i, table, extent, table_t)
         yaw, c, s = np.nan, 1.0, 0.0
         for n in range(xs.shape[0]):
             x = xs[n]
@@ -267,11 +278,13 @@ def _crosses_kernel(origins, directions, x, floor, out):
 
 
 def predicted_depths(rays: ZoneRays, x: np.ndarray, table_height: float,
-                     model: SensorModelParams) -> np.ndarray:
+                     model: SensorModelParams, params: BoxFitParams | None = None
+                     ) -> np.ndarray:
     """(n,) the depth the model says each zone reports for box x = (cx, cy, yaw, L, W, H)
     standing on the table plane; NaN where no surface cluster is sizeable."""
     out = np.empty(len(rays))
     _predict_kernel(rays.origins, rays.directions, np.asarray(x, float), float(table_height),
+                    (params or BoxFitParams()).extent(),
                     *cluster_rule(model, rays.directions.shape[1]), out)
     return out
 
@@ -327,6 +340,7 @@ class _SideSearch:
         self.params = params
         m = rays.directions.shape[1]
         self._rule = cluster_rule(model, m)
+        self._extent = params.extent()
         self._all = np.arange(len(rays))
         # Each zone's samples in the order its last evaluation sorted them (see _costs_kernel).
         self._order = np.tile(np.arange(m), (len(rays), 1))
@@ -342,7 +356,7 @@ class _SideSearch:
         out = np.empty((len(ps), len(zones)))
         r, params = self.rays, self.params
         _costs_kernel(r.origins, r.directions, r.measured, r.sigma, zones, xs, self.table,
-                      *self._rule, params.loss_scale, params.loss_scale ** 2,
+                      self._extent, *self._rule, params.loss_scale, params.loss_scale ** 2,
                       params.no_return_residual, self._order, out)
         return out
 

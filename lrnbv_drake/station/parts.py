@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.box_fit import BoxEstimator
+from lrnbv_drake.core.box_fit import BoxEstimator, BoxFitParams
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.objects import PlacedObject
 from lrnbv_drake.core.packing import CatalogueError, Container, load_catalogue
@@ -132,7 +132,13 @@ def box_estimator(scenario: Scenario) -> BoxEstimator | None:
     if e.estimator != "model":
         raise ScenarioError(f"field 'extraction.estimator': expected 'model' or 'cells', got "
                             f"{e.estimator!r}")
-    return BoxEstimator(sensor_params(scenario), scenario.cell.table_height)
+    return BoxEstimator(sensor_params(scenario), scenario.cell.table_height,
+                        box_fit_params(scenario))
+
+
+def box_fit_params(scenario: Scenario) -> BoxFitParams:
+    """The box fit's settings: the defaults, and the table's footprint."""
+    return BoxFitParams(table_extent=tuple(scenario.cell.table_extent))
 
 
 def extraction_params(scenario: Scenario) -> ExtractionParams:
@@ -185,7 +191,8 @@ def make_stop(planner: str, scenario: Scenario) -> BoxStop | None:
                             f"{stop.rule!r}")
     if stop.rule == "paper" or planner == "heu":
         return None
-    return BoxStop(BoxEstimator(sensor_params(scenario), scenario.cell.table_height),
+    return BoxStop(BoxEstimator(sensor_params(scenario), scenario.cell.table_height,
+                                box_fit_params(scenario)),
                    BoxStopParams(tolerance=stop.tolerance, stable_poses=stop.stable_poses,
                                  min_poses=stop.min_poses))
 

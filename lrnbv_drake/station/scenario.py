@@ -54,6 +54,10 @@ class CellConfig:
     table_height: float = 0.0
     # Reflectance of the table top at 940 nm; only a non-ideal simulated device reads it.
     table_reflectance: float = 0.3
+    # The table top's footprint in the world, [x_min, y_min, x_max, y_max], metres (the
+    # shipped table: 1.2 x 0.8 m centred at (0.30, 0)): the box fit's scene model sees the
+    # table only there.
+    table_extent: list[float] = dc.field(default_factory=lambda: [-0.30, -0.40, 0.90, 0.40])
     # Axis-aligned box (world frame, metres) the sensor origin must stay in.
     workspace_lower: list[float] = dc.field(default_factory=lambda: [0.0, -0.6, 0.05])
     workspace_upper: list[float] = dc.field(default_factory=lambda: [1.0, 0.6, 1.0])

@@ -79,6 +79,9 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("robot.collision_padding", _at_least(0)),
     ("cell.table_height", _FINITE),
     ("cell.table_reflectance", _FRACTION),
+    ("cell.table_extent", ((lambda v: len(v) == 4 and all(math.isfinite(x) for x in v)
+                            and v[0] < v[2] and v[1] < v[3]),
+                           "[x_min, y_min, x_max, y_max], finite, each min below its max")),
     ("cell.workspace_lower", _vector(3)),
     ("cell.workspace_upper", _vector(3)),
     ("object.scale", _above(0)),
