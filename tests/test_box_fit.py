@@ -20,6 +20,7 @@ from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.metrics import true_box
 from lrnbv_drake.core.poses import look_at
 from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame, nearest_cluster_depth
+from lrnbv_drake.core.tof_device import DeviceBehaviour
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import sensor_params
 from lrnbv_drake.station.scenario import load_scenario
@@ -197,3 +198,23 @@ def test_beyond_the_tables_footprint_a_sub_ray_sees_nothing():
     # World x of the view grows along one image axis: every zone that changed is one whose
     # rays reach past x = 0.15 m, and it reports no sizeable surface.
     assert np.all(np.isnan(depth[beyond]))
+
+
+def test_a_merging_model_predicts_the_signal_weighted_depth_of_a_zone():
+    """With the model's merge rule (every surface of a zone within 600 mm one return at the
+    signal-weighted depth, signal 1 / d^2 for one reflectance), each zone of the hand-worked
+    view reads sum(1 / d) / sum(1 / d^2) over its sub-ray depths, cast independently; zones
+    that see only the table read 0.5 m as before."""
+    model = SensorModelParams()
+    X_WS = look_at(np.array([0.0, 0.0, 0.5]), np.zeros(3))
+    frame = ToFFrame(np.full((8, 8), 1), np.full((8, 8), 5), np.zeros((8, 8)))
+    rays = zone_rays(frame, X_WS, model)
+    x = np.array([0.0, 0.0, 0.0, 0.2, 0.2, 0.1])
+    merging = BoxFitParams(behaviour=DeviceBehaviour(merge_mm=600.0, target_order="strongest"))
+    depth = predicted_depths(rays, x, 0.0, model, merging)
+    samples = _reference_depths(rays, x, 0.0, 0.0)
+    expected = np.sum(1 / samples, axis=1) / np.sum(1 / samples**2, axis=1)
+    np.testing.assert_allclose(depth, expected, rtol=1e-12)
+    nearest = predicted_depths(rays, x, 0.0, model)
+    straddling = (samples.min(axis=1) < 0.45) & (samples.max(axis=1) > 0.45)
+    assert straddling.any() and np.all(depth[straddling] > nearest[straddling] + 1e-3)

@@ -37,10 +37,10 @@ from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.sensor import (
     SensorModelParams,
     ToFFrame,
-    cluster_median,
     cluster_rule,
     sorted_cluster_median,
 )
+from lrnbv_drake.core.tof_device import MERGED_DEPTHS, DeviceBehaviour, sorted_target
 
 
 @dc.dataclass(frozen=True)
@@ -74,6 +74,9 @@ class BoxFitParams:
     # The table top's footprint in the world, (x_min, y_min, x_max, y_max), metres: a sub-ray
     # that passes beyond it sees nothing there. None: an endless table.
     table_extent: tuple[float, float, float, float] | None = None
+    # How the model says a zone picks its reading (`sensor:`'s target order and merging,
+    # `reduction_rule`); None: the nearest cluster holding min_share.
+    behaviour: DeviceBehaviour | None = None
 
     def extent(self) -> np.ndarray:
         """`table_extent` as the kernels take it, +-inf for an endless table."""
@@ -207,22 +210,44 @@ def _zone_depths(origins, directions, i, x, floor, c, s, d0, d1, table_t, depths
 
 
 @numba.njit(cache=True)
-def _predict_kernel(origins, directions, x, table, extent, min_count, gap_m, slope, out):
-    """`predicted_depths` zone by zone: the box's sub-ray depths reduced by the device's
-    cluster rule."""
+def _reduce_sorted(ordered, min_count, gap_m, slope, merge_m, strongest, merged_mode, signal,
+                   ones, foreign, target):
+    """The model's reading of one zone from its sorted sub-ray depths: the nearest cluster
+    holding min_count (`sorted_cluster_median`) or, with `merge_m` > 0, the target the model's
+    merge rule reports (`tof_device.sorted_target`, every surface of one reflectance, so a
+    sample's signal is 1 / d^2). `signal`, `ones`, `foreign`, `target`: work buffers."""
+    if merge_m <= 0.0:
+        return sorted_cluster_median(ordered, min_count, gap_m, slope)
+    for j in range(ordered.shape[0]):
+        d = ordered[j]
+        signal[j] = 1.0 / (d * d) if math.isfinite(d) else 0.0
+    sorted_target(ordered, signal, ones, foreign, ordered.shape[0], gap_m, slope, merge_m,
+                  strongest, merged_mode, 0.0, target)
+    return target[0]
+
+
+@numba.njit(cache=True)
+def _predict_kernel(origins, directions, x, table, extent, min_count, gap_m, slope, merge_m,
+                    strongest, merged_mode, out):
+    """`predicted_depths` zone by zone: the box's sub-ray depths reduced by the model's
+    rule."""
     m = directions.shape[1]
     d0, d1, table_t, depths = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    signal, ones, foreign, target = np.empty(m), np.ones(m), np.zeros(m, np.bool_), np.empty(4)
     c, s = math.cos(x[2]), math.sin(x[2])
     for i in range(origins.shape[0]):
         _rotate(directions, i, c, s, d0, d1)
         _table_depths(origins, directions, i, table, extent, table_t)
         _zone_depths(origins, directions, i, x, table, c, s, d0, d1, table_t, depths)
-        out[i] = cluster_median(depths, min_count, gap_m, slope)
+        depths.sort()
+        out[i] = _reduce_sorted(depths, min_count, gap_m, slope, merge_m, strongest,
+                                merged_mode, signal, ones, foreign, target)
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _costs_kernel(origins, directions, measured, sigma, zones, xs, table, extent, min_count,
-                  gap_m, slope, loss_scale, loss_scale_sq, no_return, order, out):
+                  gap_m, slope, merge_m, strongest, merged_mode, loss_scale, loss_scale_sq,
+                  no_return, order, out):
     """out[n, k]: the soft-L1 cost of zone zones[k]'s residual in model sigmas (`no_return`
     where no cluster is sizeable, inf for a flat box) for box xs[n], every candidate of a grid
     in one call. Zone by zone, so what only the zone fixes (the table depths, the
@@ -232,6 +257,7 @@ def _costs_kernel(origins, directions, measured, sigma, zones, xs, table, extent
     m = directions.shape[1]
     d0, d1, table_t, depths = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     ordered = np.empty(m)
+    signal, ones, foreign, target = np.empty(m), np.ones(m), np.zeros(m, np.bool_), np.empty(4)
     for k in range(zones.shape[0]):
         i = zones[k]
         _table_depths(origins, directions, i, table, extent, table_t)
@@ -255,7 +281,9 @@ def _costs_kernel(origins, directions, measured, sigma, zones, xs, table, extent
                     ordered[a + 1], order[i, a + 1] = ordered[a], order[i, a]
                     a -= 1
                 ordered[a + 1], order[i, a + 1] = v, index
-            r = (measured[i] - sorted_cluster_median(ordered, min_count, gap_m, slope)) / sigma[i]
+            r = (measured[i] - _reduce_sorted(ordered, min_count, gap_m, slope, merge_m,
+                                              strongest, merged_mode, signal, ones, foreign,
+                                              target)) / sigma[i]
             if math.isnan(r):
                 r = no_return
             q = r / loss_scale
@@ -277,6 +305,16 @@ def _crosses_kernel(origins, directions, x, floor, out):
                 break
 
 
+def reduction_rule(model: SensorModelParams, behaviour: DeviceBehaviour | None, m: int
+                   ) -> tuple[int, float, float, float, bool, int]:
+    """The kernels' arguments for the model's reading of a zone of m sub-rays: the cluster
+    rule (`cluster_rule`), then the merge distance (m), strongest order and merged depth of
+    `behaviour` (None, or merge_mm 0: the nearest cluster holding min_share)."""
+    b = behaviour or DeviceBehaviour()
+    return (*cluster_rule(model, m), b.merge_mm / 1000.0, b.target_order == "strongest",
+            MERGED_DEPTHS.index(b.merged_depth))
+
+
 def predicted_depths(rays: ZoneRays, x: np.ndarray, table_height: float,
                      model: SensorModelParams, params: BoxFitParams | None = None
                      ) -> np.ndarray:
@@ -285,7 +323,8 @@ def predicted_depths(rays: ZoneRays, x: np.ndarray, table_height: float,
     out = np.empty(len(rays))
     _predict_kernel(rays.origins, rays.directions, np.asarray(x, float), float(table_height),
                     (params or BoxFitParams()).extent(),
-                    *cluster_rule(model, rays.directions.shape[1]), out)
+                    *reduction_rule(model, (params or BoxFitParams()).behaviour,
+                                    rays.directions.shape[1]), out)
     return out
 
 
@@ -339,7 +378,7 @@ class _SideSearch:
         self.rays, self.edges, self.table = rays, edges, table_height
         self.params = params
         m = rays.directions.shape[1]
-        self._rule = cluster_rule(model, m)
+        self._rule = reduction_rule(model, params.behaviour, m)
         self._extent = params.extent()
         self._all = np.arange(len(rays))
         # Each zone's samples in the order its last evaluation sorted them (see _costs_kernel).

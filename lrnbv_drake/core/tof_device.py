@@ -232,13 +232,14 @@ def bleed_samples(depth: np.ndarray, signal: np.ndarray, bleed: float
 
 
 @numba.njit(cache=True)
-def _zone_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, merge_m,
-                 strongest, merged_mode, signal_limit, out):
-    """One zone: groups its samples into surfaces and surfaces into targets, and writes the
-    reported target's depth (m), status, signal-weighted reflectance and zone signal into
-    `out` (depth NaN where no target is detected)."""
-    order = np.argsort(depth)
-    m = order.shape[0]
+def sorted_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, merge_m,
+                  strongest, merged_mode, signal_limit, out):
+    """One zone, its samples sorted by depth (inf, where nothing returns, last): groups them
+    into surfaces by the depth-gap rule and surfaces into targets within `merge_m`, and
+    writes the reported target's depth (m), status, signal-weighted reflectance and zone
+    signal into `out` (depth NaN where no target is detected). The box fit predicts a
+    merging device's zones with it too."""
+    m = depth.shape[0]
     best_depth, best_status, best_rho, best_signal = np.nan, 255, 0.0, -1.0
     i = 0
     # the target being built: its signal sums and its surfaces' extreme centroids
@@ -248,21 +249,19 @@ def _zone_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, m
     while True:
         # next surface, or flush at the end
         s_s, s_sd, s_srho, s_sf = 0.0, 0.0, 0.0, 0.0
-        at_end = i >= m or not math.isfinite(depth[order[i]])
+        at_end = i >= m or not math.isfinite(depth[i])
         if not at_end:
             j = i
             while True:
-                k = order[j]
-                s_s += signal[k]
-                s_sd += signal[k] * depth[k]
-                s_srho += signal[k] * reflectance[k]
-                if foreign[k]:
-                    s_sf += signal[k]
+                s_s += signal[j]
+                s_sd += signal[j] * depth[j]
+                s_srho += signal[j] * reflectance[j]
+                if foreign[j]:
+                    s_sf += signal[j]
                 j += 1
-                if j >= m or not math.isfinite(depth[order[j]]):
+                if j >= m or not math.isfinite(depth[j]):
                     break
-                prev = depth[order[j - 1]]
-                if depth[order[j]] - prev > max(gap_m, slope * prev):
+                if depth[j] - depth[j - 1] > max(gap_m, slope * depth[j - 1]):
                     break
             i = j
             if s_s <= 0.0:
@@ -309,9 +308,15 @@ def _zone_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, m
 @numba.njit(cache=True)
 def _targets_kernel(depth, signal, reflectance, foreign, own_count, gap_m, slope, merge_m,
                     strongest, merged_mode, signal_limit, out):
+    m = depth.shape[1]
+    d, s, r, f = np.empty(m), np.empty(m), np.empty(m), np.empty(m, np.bool_)
     for z in range(depth.shape[0]):
-        _zone_target(depth[z], signal[z], reflectance[z], foreign[z], own_count, gap_m, slope,
-                     merge_m, strongest, merged_mode, signal_limit, out[z])
+        order = np.argsort(depth[z])
+        for j in range(m):
+            k = order[j]
+            d[j], s[j], r[j], f[j] = depth[z, k], signal[z, k], reflectance[z, k], foreign[z, k]
+        sorted_target(d, s, r, f, own_count, gap_m, slope, merge_m, strongest, merged_mode,
+                      signal_limit, out[z])
 
 
 def zone_targets(depth_m: np.ndarray, signal: np.ndarray, reflectance: np.ndarray,

@@ -137,8 +137,10 @@ def box_estimator(scenario: Scenario) -> BoxEstimator | None:
 
 
 def box_fit_params(scenario: Scenario) -> BoxFitParams:
-    """The box fit's settings: the defaults, and the table's footprint."""
-    return BoxFitParams(table_extent=tuple(scenario.cell.table_extent))
+    """The box fit's settings: the defaults, the table's footprint and the model's rule for
+    a zone's reading."""
+    return BoxFitParams(table_extent=tuple(scenario.cell.table_extent),
+                        behaviour=sensor_behaviour(scenario))
 
 
 def extraction_params(scenario: Scenario) -> ExtractionParams:
