@@ -135,17 +135,21 @@ class LrNbvPolicy(ViewpointPolicy):
         lower[2] = max(lower[2], self.table_height)  # nothing to explore under the table top
         return AlignedBox(lower, roi.upper), points, center
 
-    def _random_position(self) -> np.ndarray:
-        return self.rng.uniform(self.workspace.lower, self.workspace.upper)
+    def _random_positions(self, k: int) -> np.ndarray:
+        """(k, 3) uniform positions in the workspace (the same draws as k draws of one)."""
+        return self.rng.uniform(self.workspace.lower, self.workspace.upper, (k, 3))
 
     def _cached_sampler(self, promising: list[_Cached]):
         """Positions around the promising cached nodes, best first, in turn (ExpandRRTCached)."""
         spread = self.params.cached_sample_spread
-        draws = iter(range(10**9))
+        centers = np.array([node.X_WS[:3, 3] for node in promising])
+        drawn = 0
 
-        def sample() -> np.ndarray:
-            node = promising[next(draws) % len(promising)]
-            return node.X_WS[:3, 3] + self.rng.normal(0.0, spread, 3)
+        def sample(k: int) -> np.ndarray:
+            nonlocal drawn
+            around = centers[(drawn + np.arange(k)) % len(promising)]
+            drawn += k
+            return around + self.rng.normal(0.0, spread, (k, 3))
         return sample
 
     def _grow(self, tree: ViewTree | np.ndarray, n: int, sampler, snapshot: PlanningSnapshot,
@@ -220,7 +224,7 @@ class LrNbvPolicy(ViewpointPolicy):
 
         started = time.perf_counter()
         n = self.params.samples_per_iteration
-        tree, utilities, branch = self._grow(observation.X_WS, n, self._random_position,
+        tree, utilities, branch = self._grow(observation.X_WS, n, self._random_positions,
                                              snapshot, roi, reach)
         cached_nodes: set[int] = set()
         self._cache_off_branch(tree, utilities, branch, cached_nodes)

@@ -86,9 +86,10 @@ def orient(positions: np.ndarray, aims: np.ndarray) -> np.ndarray:
     return look_at_batch(eyes, np.tile(aims, (B, 1))).reshape(B, A, 4, 4)
 
 
-def expand_tree(tree: ViewTree | np.ndarray, n: int, sample_position: Callable[[], np.ndarray],
-                workspace: AlignedBox, roi: AlignedBox, score: Scorer, reach: Reach,
-                params: TreeParams, steer: bool = True) -> ViewTree:
+def expand_tree(tree: ViewTree | np.ndarray, n: int,
+                sample_positions: Callable[[int], np.ndarray], workspace: AlignedBox,
+                roi: AlignedBox, score: Scorer, reach: Reach, params: TreeParams,
+                steer: bool = True) -> ViewTree:
     """Adds up to `n` candidate views to `tree`, or to a new tree rooted at the pose `tree`
     (4x4), and returns the tree.
 
@@ -99,7 +100,7 @@ def expand_tree(tree: ViewTree | np.ndarray, n: int, sample_position: Callable[[
     without any IK solution are not scored at all.
 
     Args:
-        sample_position: draws the position the next node steers towards.
+        sample_positions: draws the (k, 3) positions the next k nodes steer towards.
         workspace: where sensor positions may be.
         roi: the region of interest the views look at.
         score: gains and utilities of a batch of poses.
@@ -113,12 +114,13 @@ def expand_tree(tree: ViewTree | np.ndarray, n: int, sample_position: Callable[[
     wanted = tree.size + n
     keep_out = roi.inflate(params.roi_clearance)
     aims = aim_points(roi, params.aim_offset_fraction)
+    A = len(aims)
     positions = np.array([X[:3, 3] for X in tree.poses])
     attempts = n * params.max_attempts_per_node
     while tree.size < wanted and attempts > 0:
         batch = min(params.round_size, wanted - tree.size, attempts)
         attempts -= batch
-        targets = np.array([sample_position() for _ in range(batch)])
+        targets = np.asarray(sample_positions(batch), float).reshape(batch, 3)
         distances = np.linalg.norm(targets[:, None] - positions[None], axis=2)
         nearest = np.argmin(distances, axis=1)
         d = distances[np.arange(batch), nearest]
@@ -138,16 +140,21 @@ def expand_tree(tree: ViewTree | np.ndarray, n: int, sample_position: Callable[[
         utilities = np.full(len(has_ik), -np.inf)
         utilities[has_ik] = scored
         index_in_scored = np.cumsum(has_ik) - 1
+        fields = gains._fields()
+        added = []
         for b in range(len(new)):
-            for k in np.argsort(-utilities[b * len(aims):(b + 1) * len(aims)], kind="stable"):
-                i = b * len(aims) + k
+            for k in np.argsort(-utilities[b * A:(b + 1) * A], kind="stable"):
+                i = b * A + k
                 free = next((q for q in solutions[i] if reach.collision_free(q)), None) \
                     if has_ik[i] else None
                 if free is not None:
+                    j = int(index_in_scored[i])
                     tree.poses.append(poses[b, k])
                     tree.parents.append(int(nearest[b]))
-                    tree.gains.append(gains.take(index_in_scored[i]))
+                    tree.gains.append(Gains(*(g[j:j + 1] for g in fields)))
                     tree.configs.append(free)
+                    added.append(b)
                     break
-        positions = np.array([X[:3, 3] for X in tree.poses])
+        if added:
+            positions = np.concatenate([positions, new[added]])
     return tree

@@ -104,24 +104,29 @@ def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state
                       out_ge, out_gd):
     nx, ny, nz = state.shape
     cell_volume = res * res * res
+    d = np.empty(3)
     for p in range(poses.shape[0]):
         o = poses[p, :3, 3]
+        o0, o1, o2 = o[0], o[1], o[2]
         rotation = np.ascontiguousarray(poses[p, :3, :3])
         ge = 0.0
         gd = 0.0
         for r in range(rays.shape[0]):
-            d = rotation @ rays[r]
+            # The direction stays a matrix-vector product (BLAS, as it always was), so the
+            # samples and their cells are bit for bit what they were.
+            np.dot(rotation, rays[r], d)
             t0, t1 = ray_box_interval(o, d, 0.0, max_range, roi_lo, roi_hi)
             if t1 <= t0:
                 continue
+            d0, d1, d2 = d[0], d[1], d[2]
             # Samples one cell apart (t in metres: the paper's t is t / max_range), from where
-            # the ray enters the ROI.
+            # the ray enters the ROI. Scalars, not `o + t * d`: the same arithmetic without
+            # a temporary array per sample.
             t = t0 + 0.5 * res
             while t < t1:
-                x = o + t * d
-                i = int(np.floor((x[0] - origin[0]) / res))
-                j = int(np.floor((x[1] - origin[1]) / res))
-                k = int(np.floor((x[2] - origin[2]) / res))
+                i = int(np.floor(((o0 + t * d0) - origin[0]) / res))
+                j = int(np.floor(((o1 + t * d1) - origin[1]) / res))
+                k = int(np.floor(((o2 + t * d2) - origin[2]) / res))
                 t += res
                 if i < 0 or j < 0 or k < 0 or i >= nx or j >= ny or k >= nz:
                     continue
