@@ -11,10 +11,8 @@ from __future__ import annotations
 import itertools
 import math
 import os
-import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 
@@ -32,6 +30,7 @@ from ur_emulator import (
 )
 from ur_emulator.arm import rotation_vector
 from ur_emulator.control_script import split_programs
+from ur_emulator.sessions import time_limit
 
 pytest.importorskip("rtde_control")
 
@@ -43,22 +42,10 @@ _addresses = itertools.count()
 
 
 @pytest.fixture(autouse=True)
-def time_limit() -> Iterator[None]:
+def each_test_bounded() -> Iterator[None]:
     """Fail a test that runs longer than TEST_TIMEOUT (pytest-timeout is not a dependency)."""
-    if threading.current_thread() is not threading.main_thread():
+    with time_limit(TEST_TIMEOUT):
         yield
-        return
-
-    def expire(signum: int, frame: object) -> None:
-        raise TimeoutError(f"test ran longer than {TEST_TIMEOUT} s")
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.setitimer(signal.ITIMER_REAL, TEST_TIMEOUT)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0.0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 @pytest.fixture

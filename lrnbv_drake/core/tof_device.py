@@ -204,31 +204,36 @@ def corner_share(resolution: int) -> np.ndarray:
     return r / r.max() if r.max() > 0 else r
 
 
-def bleed_samples(depth: np.ndarray, signal: np.ndarray, bleed: float
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _with_neighbours(a: np.ndarray, fill: float) -> np.ndarray:
+    """(res * res, 5 m): each zone's m samples of `a` (res, res, m), then those of its
+    neighbours above, below, left and right (`fill` where it has no such neighbour)."""
+    res, _, m = a.shape
+    padded = np.full((res + 2, res + 2, m), fill)
+    padded[1:-1, 1:-1] = a
+    parts = [a] + [padded[1 + dr:res + 1 + dr, 1 + dc_:res + 1 + dc_]
+                   for dr, dc_ in ((-1, 0), (1, 0), (0, -1), (0, 1))]
+    return np.concatenate(parts, axis=-1).reshape(res * res, -1)
+
+
+def bleed_samples(depth: np.ndarray, signal: np.ndarray, reflectance: np.ndarray,
+                  bleed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Each zone's samples followed by its 4-neighbours' at `bleed` times their signal.
 
     Args:
-        depth, signal: (res, res, m) per-zone samples (depth inf where nothing returns).
+        depth, signal, reflectance: (res, res, m) per-zone samples (depth inf where nothing
+            returns).
 
     Returns:
-        (depth, signal, foreign), each (res * res, 5 m), row-major zones: the zone's own m
-        samples, then those of the neighbours above, below, left and right (zero signal where
-        the zone has no such neighbour), `foreign` marking the neighbours'.
+        (depth, signal, reflectance, foreign), each (res * res, 5 m), row-major zones: the
+        zone's own m samples, then those of the neighbours above, below, left and right (zero
+        signal where the zone has no such neighbour), `foreign` marking the neighbours'.
     """
-    res, _, m = depth.shape
-    d = np.full((res + 2, res + 2, m), np.inf)
-    s = np.zeros((res + 2, res + 2, m))
-    d[1:-1, 1:-1], s[1:-1, 1:-1] = depth, signal
-    parts_d, parts_s = [depth], [signal]
-    for dr, dc_ in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-        parts_d.append(d[1 + dr:res + 1 + dr, 1 + dc_:res + 1 + dc_])
-        parts_s.append(bleed * s[1 + dr:res + 1 + dr, 1 + dc_:res + 1 + dc_])
-    foreign = np.zeros((res, res, 5 * m), bool)
-    foreign[..., m:] = True
-    return (np.concatenate(parts_d, axis=-1).reshape(res * res, -1),
-            np.concatenate(parts_s, axis=-1).reshape(res * res, -1),
-            foreign.reshape(res * res, -1))
+    m = depth.shape[-1]
+    foreign = np.zeros((depth.shape[0] ** 2, 5 * m), bool)
+    foreign[:, m:] = True
+    s = _with_neighbours(signal, 0.0)
+    return (_with_neighbours(depth, np.inf), np.where(foreign, bleed * s, s),
+            _with_neighbours(reflectance, 0.0), foreign)
 
 
 @numba.njit(cache=True)
@@ -376,9 +381,7 @@ def device_readings(sub_depth_m: np.ndarray, params: SensorModelParams,
         returns = np.isfinite(depth) & (depth > 0)
         signal = np.where(returns, rho * w / np.where(returns, depth, 1.0) ** 2, 0.0)
     depth = np.where(returns, depth, np.inf)
-    d, s, foreign = bleed_samples(depth, signal, behaviour.sharpener_bleed)
-    r = bleed_samples(rho, signal, behaviour.sharpener_bleed)[0]
-    r = np.where(np.isfinite(r), r, 0.0)
+    d, s, r, foreign = bleed_samples(depth, signal, rho, behaviour.sharpener_bleed)
     targets = zone_targets(d, s, r, foreign, m, params, behaviour).reshape(res, res, 4)
     depth_mm = targets[..., 0] * 1000.0
     noise = rng.standard_normal((res, res))
