@@ -36,7 +36,7 @@ def test_the_defaults_and_the_examples_pass():
     ("{sensor: {resolution: 6}}", "field 'sensor.resolution': expected one of [4, 8]"),
     ("{sensor: {min_share: 1.5}}", "expected a fraction in (0, 1], got 1.5"),
     ("{extraction: {estimator: fancy}}",
-     "field 'extraction.estimator': expected one of 'model', 'cells', got 'fancy'"),
+     "field 'extraction.estimator': expected one of 'shape', 'model', 'cells', got 'fancy'"),
     ("{mapping: {resolution: .nan}}", "field 'mapping.resolution': expected a number > 0"),
     ("{robot: {initial_position: [0, 0, 0]}}",
      "field 'robot.initial_position': expected 6 finite numbers"),

@@ -95,6 +95,9 @@ class BoxFit:
     cost: float
     n_zones: int
     n_evaluations: int
+    # What the box bounds: "box" (the fitted solid box) or "height_map" (the bounding box of
+    # the height map `height_map_fit` fits where the readings need more than a box).
+    shape: str = "box"
 
     @property
     def dims_halfwidth(self) -> np.ndarray:
@@ -478,7 +481,8 @@ def fit_box(rays: ZoneRays, start: OrientedBox, table_height: float,
     for i in range(5 if interval else 0):
         outward_sign = -1 if i in (0, 2) else 1
         for sign, store in ((outward_sign, out), (-outward_sign, inward)):
-            store[i] = _profile(cost, p, i, sign, best + rise - params.interval_cost, params)
+            store[i] = profile_move(cost, p, i, sign, best + rise - params.interval_cost,
+                                    params)
     share = (params.share_tolerance * float(np.median(rays.measured))
              * math.radians(model.geometry.zone_deg))
     widen = params.interval_floor_m + np.array([2 * share, 2 * share, 0.0])
@@ -493,8 +497,8 @@ def fit_box(rays: ZoneRays, start: OrientedBox, table_height: float,
     return BoxFit(box, lower, upper, best, len(rays), search.evaluations)
 
 
-def _profile(cost, p: np.ndarray, index: int, sign: int, best: float,
-             params: BoxFitParams) -> float:
+def profile_move(cost, p: np.ndarray, index: int, sign: int, best: float,
+                 params: BoxFitParams) -> float:
     """How far coordinate `index` moves in direction `sign`, the others held, before the cost
     rises by `interval_cost` (doubling from 1 mm, then bisection to 0.5 mm)."""
     def rise(step: float) -> float:

@@ -183,7 +183,7 @@ def _box_entry(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None
              "yaw_deg": float(np.degrees(box.yaw))}
     if fit is not None:
         entry.update(dims_lower=fit.dims_lower.tolist(), dims_upper=fit.dims_upper.tolist(),
-                     zones=fit.n_zones)
+                     zones=fit.n_zones, shape=fit.shape)
     return entry
 
 

@@ -11,6 +11,7 @@ import numpy as np
 
 from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.box_fit import BoxEstimator, BoxFitParams
+from lrnbv_drake.core.height_map_fit import ShapeEstimator
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.objects import PlacedObject
 from lrnbv_drake.core.packing import CatalogueError, Container, load_catalogue
@@ -124,16 +125,16 @@ def scene_reflectance(scenario: Scenario) -> Callable[[np.ndarray], np.ndarray]:
 
 
 def box_estimator(scenario: Scenario) -> BoxEstimator | None:
-    """The estimator `extraction.estimator` names: the sensor-model fit, or None for the
-    cell box."""
+    """The estimator `extraction.estimator` names: the sensor-model box fit, that fit or the
+    height map's box (`shape`), or None for the cell box."""
     e = scenario.extraction
     if e.estimator == "cells":
         return None
-    if e.estimator != "model":
-        raise ScenarioError(f"field 'extraction.estimator': expected 'model' or 'cells', got "
-                            f"{e.estimator!r}")
-    return BoxEstimator(sensor_params(scenario), scenario.cell.table_height,
-                        box_fit_params(scenario))
+    if e.estimator not in ("model", "shape"):
+        raise ScenarioError(f"field 'extraction.estimator': expected 'shape', 'model' or "
+                            f"'cells', got {e.estimator!r}")
+    kind = ShapeEstimator if e.estimator == "shape" else BoxEstimator
+    return kind(sensor_params(scenario), scenario.cell.table_height, box_fit_params(scenario))
 
 
 def box_fit_params(scenario: Scenario) -> BoxFitParams:

@@ -125,7 +125,7 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("extraction.center", _vector(2)),
     ("extraction.max_center_distance", _above(0)),
     ("extraction.roi_margin", _at_least(0)),
-    ("extraction.estimator", _one_of("model", "cells")),
+    ("extraction.estimator", _one_of("shape", "model", "cells")),
     ("planner.num_iterations", _at_least(1)),
     ("planner.samples_per_iteration", _at_least(1)),
     ("planner.num_cached_nodes", _at_least(0)),
