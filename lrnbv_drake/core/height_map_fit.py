@@ -30,6 +30,7 @@ How:
 
 from __future__ import annotations
 
+import copy
 import dataclasses as dc
 import math
 
@@ -60,7 +61,7 @@ class HeightMapParams:
     # box fit leaves out), and the zones whose sub-rays pass within it are fitted.
     margin: float = 0.06
     # Cell sizes, coarse to fine; sweeps of the coordinate descent at each.
-    cells: tuple[float, ...] = (0.02, 0.01, 0.005)
+    cells: tuple[float, ...] = (0.02, 0.01)
     max_sweeps: int = 4
     # Columns lower than this are table: below it a column and the table give the same
     # readings within the noise.
@@ -215,8 +216,9 @@ def _prior(c, h, heights, expected, ny, size, wall_cost, volume_cost, column_cos
 def _descend(o, d, measured, sigma, m, table_t, start, cell, t_in, t_out, cell_start,
              cell_cross, cross_ray, heights, expected, candidates, cand_start, ny, rule_args,
              loss_scale, no_return, wall_cost, volume_cost, column_cost, min_height, size,
-             max_sweeps):
-    """Coordinate descent over the column heights (see the module doc); returns the cost."""
+             max_sweeps, active):
+    """Coordinate descent over the `active` column heights (see the module doc); returns
+    the cost."""
     n_rays, n_zones = o.shape[0], measured.shape[0]
     hit_k, depth = np.empty(n_rays, np.int64), np.empty(n_rays)
     for r in range(n_rays):
@@ -238,7 +240,7 @@ def _descend(o, d, measured, sigma, m, table_t, start, cell, t_in, t_out, cell_s
         moved = False
         for c in range(n_cells):
             lo, hi = cell_start[c], cell_start[c + 1]
-            if lo == hi:
+            if lo == hi or not active[c]:
                 continue
             # The zones whose rays cross this column.
             trial += 1
@@ -404,6 +406,26 @@ class _Readings:
         self.rule = reduction_rule(model, fit_params.behaviour, m)
         self.loss = (fit_params.loss_scale, fit_params.no_return_residual)
 
+    def crossing(self, edges_x: np.ndarray, edges_y: np.ndarray, top: float) -> np.ndarray:
+        """(zones,) the zones with a sub-ray through the region edges_x x edges_y, between
+        the table and `top`: the only ones a change of columns there can change."""
+        start = np.empty(len(self.o) + 1, np.int64)
+        empty_i, empty_f = np.empty(0, np.int64), np.empty(0)
+        _crossings(self.o, self.d, edges_x, edges_y, top, start, empty_i, empty_f, empty_f)
+        return (np.diff(start) > 0).reshape(self.zones, self.m).any(axis=1)
+
+    def take(self, zones: np.ndarray, hmax: float) -> _Readings:
+        """These readings restricted to the (zones,) mask `zones`, for columns no higher than
+        `hmax`."""
+        out = copy.copy(self)
+        out.hmax = hmax
+        rays = np.repeat(zones, self.m)
+        out.o, out.d, out.table_t, out.reach = (self.o[rays], self.d[rays],
+                                                self.table_t[rays], self.reach[rays])
+        out.measured, out.sigma = self.measured[zones], self.sigma[zones]
+        out.zones = int(zones.sum())
+        return out
+
     def cost(self, edges_x: np.ndarray, edges_y: np.ndarray, heights: np.ndarray) -> float:
         """The zones' summed cost for the (nx, ny) columns `heights` on these edges."""
         return float(_data_cost(self.o, self.d, self.table_t, self.measured, self.sigma,
@@ -411,8 +433,9 @@ class _Readings:
                                 self.rule, *self.loss))
 
     def descend(self, edges_x: np.ndarray, edges_y: np.ndarray, heights: np.ndarray,
-                expected: np.ndarray, params: HeightMapParams) -> float:
-        """Coordinate descent over the flat `heights` in place (`_descend`); the cost."""
+                expected: np.ndarray, active: np.ndarray, params: HeightMapParams) -> float:
+        """Coordinate descent over the flat `heights` where `active`, in place (`_descend`);
+        the cost."""
         nx, ny = len(edges_x) - 1, len(edges_y) - 1
         ray_start = np.empty(len(self.o) + 1, np.int64)
         empty_i, empty_f = np.empty(0, np.int64), np.empty(0)
@@ -431,7 +454,7 @@ class _Readings:
                               *self.loss,
                               params.wall_cost, params.volume_cost, params.column_cost,
                               params.min_height, float(edges_x[1] - edges_x[0]),
-                              params.max_sweeps))
+                              params.max_sweeps, active))
 
 
 def fit_height_map(rays: ZoneRays, start: OrientedBox, table_height: float,
@@ -458,10 +481,14 @@ def fit_height_map(rays: ZoneRays, start: OrientedBox, table_height: float,
         edges_x = _grid_edges(-half[0], half[0], size)
         edges_y = _grid_edges(-half[1], half[1], size)
         expected = _box_columns(edges_x, edges_y, start, table_height, origin, to_grid)
-        heights = expected.copy() if previous is None else _resampled(*previous, edges_x,
-                                                                      edges_y)
+        if previous is None:
+            heights, active = expected.copy(), np.ones(expected.shape, bool)
+        else:
+            heights = _resampled(*previous, edges_x, edges_y)
+            active = _unsettled(heights, expected, params.min_height)
         flat = heights.reshape(-1)
-        cost = readings.descend(edges_x, edges_y, flat, expected.reshape(-1), params)
+        cost = readings.descend(edges_x, edges_y, flat, expected.reshape(-1),
+                                active.reshape(-1), params)
         previous = (edges_x, edges_y, flat.reshape(heights.shape))
     edges_x, edges_y, grid = previous
     grid = _needed_parts(readings, edges_x, edges_y, grid, expected, params)
@@ -487,6 +514,16 @@ def _box_columns(edges_x: np.ndarray, edges_y: np.ndarray, box: OrientedBox,
     inside = (np.abs(cx - centre[0]) <= box.dims[0] / 2)[:, None] \
         & (np.abs(cy - centre[1]) <= box.dims[1] / 2)[None, :]
     return np.where(inside, box.center[2] + box.dims[2] / 2 - table_height, 0.0)
+
+
+def _unsettled(heights: np.ndarray, expected: np.ndarray, min_height: float) -> np.ndarray:
+    """The cells a finer level refits: within two cells of a step between columns or of a
+    departure from the expected height. Elsewhere (a box's flat top, the bare table) the
+    coarser level has settled them, and they are most of the grid."""
+    step = (scipy.ndimage.grey_dilation(heights, size=(3, 3))
+            - scipy.ndimage.grey_erosion(heights, size=(3, 3))) > min_height
+    departs = np.abs(heights - expected) > min_height
+    return scipy.ndimage.binary_dilation(step | departs, iterations=2)
 
 
 def _resampled(edges_x: np.ndarray, edges_y: np.ndarray, grid: np.ndarray,
@@ -535,11 +572,23 @@ class _Clip:
         self.base = np.pad(inner, ((ix[0], grid.shape[0] - 1 - ix[-1]),
                                    (iy[0], grid.shape[1] - 1 - iy[-1])), mode="edge")
 
-    def cost(self, clip: np.ndarray, grid: np.ndarray | None = None) -> float:
-        """The readings' cost for the columns (`base`, or `grid` on the same cells) cut by
-        `clip`."""
-        return self.readings.cost(*_clipped(self.edges_x, self.edges_y,
-                                            self.base if grid is None else grid, clip))
+    def cost(self, clip: np.ndarray, grid: np.ndarray | None = None,
+             readings: _Readings | None = None) -> float:
+        """The readings' (or a subset's) cost for the columns (`base`, or `grid` on the
+        same cells) cut by `clip`."""
+        return (readings or self.readings).cost(*_clipped(
+            self.edges_x, self.edges_y, self.base if grid is None else grid, clip))
+
+    def _near(self, i: int, lo: float, hi: float) -> _Readings:
+        """The readings a move of side i between lo and hi can change (the top: all that
+        pass below it)."""
+        top = float(self.base.max()) + 1e-6
+        ex, ey = self.edges_x[[0, -1]], self.edges_y[[0, -1]]
+        if i < 2:
+            ex = np.array([lo, hi])
+        elif i < 4:
+            ey = np.array([lo, hi])
+        return self.readings.take(self.readings.crossing(ex, ey, top), top)
 
     def search(self) -> tuple[np.ndarray, float]:
         """Each side by up to `clip_span` in or one cell out (4 mm then 1 mm steps), the
@@ -549,15 +598,18 @@ class _Clip:
                           max(ey[0], clip[2] - size), clip[2] + size, 0.5 * clip[4]])
         upper = np.array([clip[1] - size, min(ex[-1], clip[1] + size), clip[3] - size,
                           min(ey[-1], clip[3] + size), clip[4]])
-        best = self.cost(clip)
+        reach = self.params.clip_span + 0.004
         for _ in range(3):
             moved = False
             for i in range(5):
+                near = self._near(i, max(lower[i], clip[i] - reach),
+                                  min(upper[i], clip[i] + reach))
+                best = self.cost(clip, readings=near)
                 for span, step in ((self.params.clip_span, 0.004), (0.004, 0.001)):
                     trials = np.unique(np.clip(clip[i] + np.arange(-span, span + step / 2,
                                                                    step), lower[i], upper[i]))
-                    costs = np.array([self.cost(np.r_[clip[:i], t, clip[i + 1:]])
-                                      for t in trials])
+                    costs = np.array([self.cost(np.r_[clip[:i], t, clip[i + 1:]],
+                                                readings=near) for t in trials])
                     ties = trials[costs <= costs.min() + 1e-9]
                     if costs.min() < best - 1e-9:
                         moved = True
@@ -576,7 +628,11 @@ class _Clip:
         the box fit's top is. A spike on less than 1 % of the footprint is not the object's
         height: the price is that a thin post on a part is missed."""
         grid = self.base
-        raised = grid > self.params.min_height
+        cx = (self.edges_x[:-1] + self.edges_x[1:]) / 2
+        cy = (self.edges_y[:-1] + self.edges_y[1:]) / 2
+        inside = ((cx > clip[0]) & (cx < clip[1]))[:, None] \
+            & ((cy > clip[2]) & (cy < clip[3]))[None, :]
+        raised = inside & (grid > self.params.min_height)
         reference = float(np.percentile(grid[raised], 99))
         plateau = raised & (np.abs(grid - reference) <= self.params.plateau)
         top = reference

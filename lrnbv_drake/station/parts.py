@@ -11,8 +11,8 @@ import numpy as np
 
 from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.box_fit import BoxEstimator, BoxFitParams
-from lrnbv_drake.core.height_map_fit import ShapeEstimator
 from lrnbv_drake.core.boxes import AlignedBox
+from lrnbv_drake.core.height_map_fit import ShapeEstimator
 from lrnbv_drake.core.objects import PlacedObject
 from lrnbv_drake.core.packing import CatalogueError, Container, load_catalogue
 from lrnbv_drake.core.perception import ExtractionParams

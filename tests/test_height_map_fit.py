@@ -1,0 +1,149 @@
+"""The height-map fit (core/height_map_fit.py): its ray caster against the box fit's, its parts
+test, and the estimate on readings the simulated cell renders of objects that are not boxes."""
+
+import numpy as np
+import pytest
+import trimesh
+from rendered_views import NOISE_FREE, render, start_near
+
+from lrnbv_drake.core.box_fit import (
+    BoxFitParams,
+    ZoneRays,
+    predicted_depths,
+    reduction_rule,
+    zone_rays,
+)
+from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.height_map_fit import (
+    HeightMapParams,
+    ShapeEstimator,
+    _box_columns,
+    _needed_parts,
+    _Readings,
+    fit_height_map,
+)
+from lrnbv_drake.core.poses import look_at
+from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame
+
+
+def _frame(depth_m: np.ndarray) -> ToFFrame:
+    mm = np.asarray(np.round(depth_m * 1000), dtype=np.int32).reshape(8, 8)
+    return ToFFrame(distance_mm=mm, status=np.full((8, 8), 5), sigma_mm=np.full((8, 8), 5),
+                    sequence=1, timestamp_us=0)
+
+
+def _rays_of(box: OrientedBox, model: SensorModelParams, views: list[np.ndarray]) -> ZoneRays:
+    """Each view's zones with the readings the box fit's own caster predicts (any valid depth
+    first, then replaced by the prediction)."""
+    rays = ZoneRays.empty(model.subsamples ** 2)
+    x = np.array([*box.center[:2], box.yaw, *box.dims])
+    for X in views:
+        r = zone_rays(_frame(np.full(64, 0.3)), X, model)
+        r.measured[:] = predicted_depths(r, x, 0.0, model)
+        rays = rays.extend(r.take(np.isfinite(r.measured)))
+    return rays
+
+
+def test_columns_of_a_box_predict_what_the_box_fit_predicts():
+    """A height map that is a box (its sides on cell edges) seen from above and the side: the
+    same readings as the box fit's slab caster, to the micrometre, on every zone."""
+    model = SensorModelParams()
+    box = OrientedBox(np.array([0.5, 0.0, 0.05]), np.array([0.12, 0.08, 0.10]), 0.0)
+    views = [look_at([0.5, 0.0, 0.45], [0.5, 0.0, 0.05]),
+             look_at([0.78, 0.1, 0.2], [0.5, 0.0, 0.05])]
+    rays = _rays_of(box, model, views)
+    edges_x, edges_y = np.arange(-0.1, 0.1001, 0.01), np.arange(-0.08, 0.0801, 0.01)
+    origin, to_grid = np.array([0.5, 0.0, 0.0]), np.eye(3)
+    readings = _Readings(rays, origin, to_grid, 0.0, 0.3, model, BoxFitParams())
+    grid = _box_columns(edges_x, edges_y, box, 0.0, origin, to_grid)
+    assert grid.max() == pytest.approx(0.10) and (grid > 0).sum() == 12 * 8
+    # Every zone explained exactly costs nothing; the box 2 cm shorter costs something.
+    assert readings.cost(edges_x, edges_y, grid) == pytest.approx(0.0, abs=1e-9)
+    shorter = grid.copy()
+    shorter[14:16] = 0.0
+    assert readings.cost(edges_x, edges_y, shorter) > 1.0
+
+
+def test_a_part_the_readings_do_not_need_is_dropped_and_one_they_need_is_kept():
+    """Readings of a 12 x 8 cm box; a height map with the box, a 2-column stub beside it that
+    no reading sees, and the box's true last 2 cm row left out of the expected footprint."""
+    model = SensorModelParams()
+    box = OrientedBox(np.array([0.5, 0.0, 0.05]), np.array([0.12, 0.08, 0.10]), 0.0)
+    views = [look_at([0.5, 0.0, 0.45], [0.5, 0.0, 0.05]),
+             look_at([0.78, 0.0, 0.25], [0.5, 0.0, 0.05]),
+             look_at([0.22, 0.0, 0.25], [0.5, 0.0, 0.05])]
+    rays = _rays_of(box, model, views)
+    edges_x, edges_y = np.arange(-0.1, 0.1001, 0.01), np.arange(-0.08, 0.0801, 0.01)
+    origin, to_grid = np.array([0.5, 0.0, 0.0]), np.eye(3)
+    readings = _Readings(rays, origin, to_grid, 0.0, 0.3, model, BoxFitParams())
+    grid = _box_columns(edges_x, edges_y, box, 0.0, origin, to_grid)
+    expected = grid.copy()
+    expected[14:16] = 0.0  # the fit expected a box 2 cm shorter
+    grid[1, 0:2] = 0.02  # a stub in a corner under the field of view's edge
+    out = _needed_parts(readings, edges_x, edges_y, grid, expected, HeightMapParams())
+    assert np.all(out[1, 0:2] == 0.0)
+    np.testing.assert_array_equal(out[14:16], grid[14:16])
+
+
+def _object_file(tmp_path, meshes: list[trimesh.Trimesh]) -> str:
+    path = tmp_path / "object.obj"
+    trimesh.util.concatenate(meshes).export(path)
+    return str(path)
+
+
+def _shape_fit(scenario_text: str):
+    frames, truth, model = render(scenario_text)
+    estimator = ShapeEstimator(model, 0.0)
+    for frame, X_WS in frames:
+        estimator.add(frame, X_WS)
+    return estimator.estimate(start_near(truth)), truth
+
+
+def test_a_thin_plate_is_boxed_within_10_mm(tmp_path):
+    plate = trimesh.creation.box(extents=[0.16, 0.12, 0.02])
+    fit, truth = _shape_fit(f"object: {{name: {_object_file(tmp_path, [plate])}, "
+                            "yaw_deg: 15}\nseed: 3")
+    np.testing.assert_allclose(fit.box.dims, truth.dims, atol=0.010)
+
+
+def test_two_blocks_3_cm_apart_are_boxed_within_10_mm(tmp_path):
+    blocks = [trimesh.creation.box(extents=[0.08, 0.10, 0.06]),
+              trimesh.creation.box(extents=[0.08, 0.10, 0.06])]
+    blocks[0].apply_translation([-0.055, 0.0, 0.0])
+    blocks[1].apply_translation([0.055, 0.0, 0.0])
+    fit, truth = _shape_fit(f"object: {{name: {_object_file(tmp_path, blocks)}}}\nseed: 3")
+    np.testing.assert_allclose(truth.dims, [0.19, 0.10, 0.06], atol=1e-6)
+    np.testing.assert_allclose(fit.box.dims, truth.dims, atol=0.010)
+
+
+def test_the_gripper_is_boxed_within_10_mm_where_the_box_fit_is_short():
+    """The gripper's fingers are lower than its housing: the solid box fit leaves them out;
+    the height map's box does not."""
+    frames, truth, model = render("object: {name: gripper, yaw_deg: 20}\nseed: 3")
+    estimator = ShapeEstimator(model, 0.0)
+    for frame, X_WS in frames:
+        estimator.add(frame, X_WS)
+    fit = estimator.estimate(start_near(truth))
+    assert fit.shape == "height_map"
+    assert estimator.last.box.dims[0] < truth.dims[0] - 0.015  # the box fit alone
+    np.testing.assert_allclose(fit.box.dims, truth.dims, atol=0.010)
+    assert np.all(fit.dims_lower <= fit.box.dims) and np.all(fit.box.dims <= fit.dims_upper)
+
+
+def test_on_a_box_the_box_fit_stands():
+    frames, truth, model = render("object: {name: horizontal_box, yaw_deg: 30}\n" + NOISE_FREE)
+    estimator = ShapeEstimator(model, 0.0)
+    for frame, X_WS in frames:
+        estimator.add(frame, X_WS)
+    fit = estimator.estimate(start_near(truth))
+    assert fit.shape == "box"
+    np.testing.assert_allclose(fit.box.dims, truth.dims, atol=0.002)
+
+
+def test_no_reading_near_the_start_gives_no_height_map():
+    model = SensorModelParams()
+    far = OrientedBox(np.array([3.0, 3.0, 0.05]), np.array([0.1, 0.1, 0.1]), 0.0)
+    rays = _rays_of(OrientedBox(np.array([0.5, 0.0, 0.05]), np.array([0.1, 0.1, 0.1]), 0.0),
+                    model, [look_at([0.5, 0.0, 0.45], [0.5, 0.0, 0.05])])
+    assert fit_height_map(rays, far, 0.0, model) is None
+    assert reduction_rule(model, None, 64)[0] == 16  # the rule the casters share
