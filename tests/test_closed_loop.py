@@ -22,7 +22,8 @@ def test_lrnbv_on_the_horizontal_box_ends_when_the_box_holds_still_in_few_poses(
     # 0.12 m), the truth inside the reported interval, and a first pose after which it stays so.
     np.testing.assert_allclose(report["metrics"]["estimated_dims"], [0.30, 0.20, 0.12],
                                atol=0.005)
-    assert report["estimated_box"]["estimator"] == "model"
+    assert report["estimated_box"]["estimator"] == "shape"
+    assert report["estimated_box"]["shape"] == "box"
     assert report["metrics"]["truth_in_interval"] == [True, True, True]
     assert 1 <= report["metrics"]["poses_to_5mm"] <= report["n_poses"]
     assert report["n_poses"] < Scenario().max_poses

@@ -121,8 +121,8 @@ def test_the_paper_preset_sets_the_papers_estimator_stop_and_utility_and_nothing
     assert (paper.extraction.estimator, paper.planner.stop.rule,
             paper.planner.travel_discount) == ("cells", "paper", 0.0)
     assert (product.extraction.estimator, product.planner.stop.rule,
-            product.planner.travel_discount) == ("model", "box", 0.0)
-    paper.extraction.estimator, paper.planner.stop.rule = "model", "box"
+            product.planner.travel_discount) == ("shape", "box", 0.0)
+    paper.extraction.estimator, paper.planner.stop.rule = "shape", "box"
     assert yaml_dump_typed(paper) == yaml_dump_typed(product)
     with pytest.raises(ScenarioError, match="unknown preset 'papers'"):
         preset("papers")

@@ -459,11 +459,13 @@ class _Readings:
 
 def fit_height_map(rays: ZoneRays, start: OrientedBox, table_height: float,
                    model: SensorModelParams, fit_params: BoxFitParams | None = None,
-                   params: HeightMapParams | None = None, interval: bool = True
-                   ) -> HeightMap | None:
+                   params: HeightMapParams | None = None, interval: bool = True,
+                   screen: bool = False) -> HeightMap | None:
     """The height map that best explains the readings `rays` around `start` (a box fit's or
     the cell box: it sets the grid's yaw and extent); None when no reading sees it. Without
-    `interval` the box's dimension bounds are NaN (they cost about 100 evaluations)."""
+    `interval` the box's dimension bounds are NaN (they cost about 100 evaluations). With
+    `screen` there is no box when no column stands outside `start`, and the fit stops after
+    the coarsest level if none is needed there: the object is then `start`."""
     params = params or HeightMapParams()
     fit_params = fit_params or BoxFitParams()
     c, s = math.cos(start.yaw), math.sin(start.yaw)
@@ -490,11 +492,16 @@ def fit_height_map(rays: ZoneRays, start: OrientedBox, table_height: float,
         cost = readings.descend(edges_x, edges_y, flat, expected.reshape(-1),
                                 active.reshape(-1), params)
         previous = (edges_x, edges_y, flat.reshape(heights.shape))
+        if screen and size == params.cells[0] and not _outside(
+                _needed_parts(readings, edges_x, edges_y, previous[2], expected, params),
+                expected, params.min_height):
+            break
     edges_x, edges_y, grid = previous
     grid = _needed_parts(readings, edges_x, edges_y, grid, expected, params)
     keep = _object_columns(grid, params.min_height)
     box, lower, upper = None, np.full(3, np.nan), np.full(3, np.nan)
-    if keep.any():
+    if keep.any() and (not screen or _outside(np.where(keep, grid, 0.0), expected,
+                                              params.min_height)):
         clipper = _Clip(readings, edges_x, edges_y, np.where(keep, grid, 0.0), params)
         clip, best = clipper.search()
         box = _clip_box(clip, origin, start.yaw)
@@ -504,6 +511,11 @@ def fit_height_map(rays: ZoneRays, start: OrientedBox, table_height: float,
                 lower, upper = lower[[1, 0, 2]], upper[[1, 0, 2]]
     return HeightMap(grid, edges_x, edges_y, origin[:2].copy(), float(start.yaw), box,
                      lower, upper, float(cost), len(rays))
+
+
+def _outside(grid: np.ndarray, expected: np.ndarray, min_height: float) -> bool:
+    """A column stands where the expected box has none."""
+    return bool(np.any((grid > min_height) & (expected.reshape(grid.shape) == 0)))
 
 
 def _box_columns(edges_x: np.ndarray, edges_y: np.ndarray, box: OrientedBox,
@@ -618,7 +630,7 @@ class _Clip:
             if not moved:
                 break
         clip[4] = self._plateau_top(clip)
-        return clip, self.cost(clip)
+        return clip, self.flat_cost(clip)
 
     def _plateau_top(self, clip: np.ndarray) -> float:
         """The object's height: its top plateau (the columns within `plateau` of the 99th
@@ -634,24 +646,29 @@ class _Clip:
             & ((cy > clip[2]) & (cy < clip[3]))[None, :]
         raised = inside & (grid > self.params.min_height)
         reference = float(np.percentile(grid[raised], 99))
-        plateau = raised & (np.abs(grid - reference) <= self.params.plateau)
+        self.plateau = raised & (np.abs(grid - reference) <= self.params.plateau)
         top = reference
         for span, step in ((self.params.plateau, 0.002), (0.003, 0.0005)):
             trials = top + np.arange(-span, span + step / 2, step)
-            costs = [self.cost(np.r_[clip[:4], t], np.where(plateau, t, grid)) for t in trials]
+            costs = [self.flat_cost(np.r_[clip[:4], t]) for t in trials]
             top = float(trials[int(np.argmin(costs))])
         return top
+
+    def flat_cost(self, clip: np.ndarray) -> float:
+        """The cost with the top plateau at the clip's top (after `_plateau_top`)."""
+        return self.cost(clip, np.where(self.plateau, clip[4], self.base))
 
     def interval(self, clip: np.ndarray, best: float, fit_params: BoxFitParams,
                  model: SensorModelParams) -> tuple[np.ndarray, np.ndarray]:
         """(3,) lower and upper dimension bounds, as `box_fit.fit_box` makes them: how far each
-        side and the top move out and in before the cost rises by the profile level."""
+        side and the top (the plateau with it) move out and in before the cost rises by the
+        profile level."""
         rise = fit_params.interval_cost * max(1.0, best / max(self.readings.zones - 5, 1))
         moves = np.zeros((5, 2))
         for i in range(5):
             outward = -1 if i in (0, 2) else 1
             for k, sign in enumerate((outward, -outward)):
-                moves[i, k] = profile_move(self.cost, clip, i, sign,
+                moves[i, k] = profile_move(self.flat_cost, clip, i, sign,
                                            best + rise - fit_params.interval_cost, fit_params)
         share = (fit_params.share_tolerance * float(np.median(self.readings.measured))
                  * math.radians(model.geometry.zone_deg))
@@ -737,7 +754,7 @@ class ShapeEstimator(BoxEstimator):
         if fit is None:
             return None
         shape = fit_height_map(self._rays, fit.box, self._table_height, self._model,
-                               self._params, self._shape, interval)
+                               self._params, self._shape, interval, screen=True)
         if shape is None or shape.box is None or not np.any(shape.box.dims > fit.dims_upper):
             return fit
         return BoxFit(shape.box, shape.dims_lower, shape.dims_upper, shape.cost, shape.zones,

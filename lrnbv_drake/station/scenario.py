@@ -216,11 +216,12 @@ class ExtractionConfig:
     # Boxes enclose the occupied cells (True) or their centres (False). Edge zones already put
     # points up to half a zone beyond an edge; enclosing the cells adds a cell more.
     enclose_cells: bool = False
-    # The reported box: "model", the box fitted to the raw zone readings through the sensor
-    # model (core/box_fit.py); "shape", that box or, where the readings need more than a box,
-    # the bounding box of a height map fitted the same way (core/height_map_fit.py); or
-    # "cells", around the occupied cells of the cluster (the paper's).
-    estimator: str = "model"
+    # The reported box: "shape" (the product's default), the box fitted to the raw zone
+    # readings through the sensor model or, where the readings need more than a box, the
+    # bounding box of a height map fitted the same way (core/height_map_fit.py); "model", that
+    # box fit alone (core/box_fit.py); or "cells", around the occupied cells of the cluster
+    # (the paper's).
+    estimator: str = "shape"
 
 
 def default_visualization() -> VisualizationConfig:
