@@ -695,18 +695,24 @@ def _needed_parts(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarray,
     columns raised outside it (8-connected) stays only if it has two columns or more and
     removing it raises the cost by `part_cost` a column. Measured on saved episodes: a
     gripper's finger or a flange's rim gains 10-70 a column, the strips a 1 cm grid adds
-    beside a box 3-6, a lone column anything up to 70; 8 lies between."""
+    beside a box 3-6, a lone column anything up to 70; 8 lies between.
+
+    The price is in units of the model's sigma, so it is scaled by the cost per zone the
+    height map leaves (when above one): a device that is not the model (uncalibrated) leaves
+    5-16 a zone even on a box, and there, unscaled, every box grew parts 4 cm long out of the
+    misfit (the datasheet device with the nominal model, docs/results.md)."""
     out = grid.copy()
     outside = (expected.reshape(grid.shape) == 0) & (grid > params.min_height)
     labels, count = scipy.ndimage.label(outside, structure=np.ones((3, 3)))
     if count == 0:
         return out
     base = readings.cost(edges_x, edges_y, grid)
+    price = params.part_cost * max(1.0, base / readings.zones)
     for k in range(1, count + 1):
         part = labels == k
         without = np.where(part, 0.0, grid)
         n = int(part.sum())
-        if n < 2 or readings.cost(edges_x, edges_y, without) - base < params.part_cost * n:
+        if n < 2 or readings.cost(edges_x, edges_y, without) - base < price * n:
             out[part] = 0.0
     return out
 
