@@ -45,12 +45,16 @@ from lrnbv_drake.core.box_fit import (
     ZoneRays,
     _reduce_sorted,
     _table_depths,
+    fit_box,
     near_box,
+    predicted_depths,
     profile_move,
     reduction_rule,
+    zone_rays,
 )
 from lrnbv_drake.core.boxes import OrientedBox
-from lrnbv_drake.core.sensor import SensorModelParams
+from lrnbv_drake.core.poses import look_at
+from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame
 
 
 @dc.dataclass(frozen=True)
@@ -765,3 +769,25 @@ class ShapeEstimator(BoxEstimator):
             return fit
         return BoxFit(shape.box, shape.dims_lower, shape.dims_upper, shape.cost, shape.zones,
                       fit.n_evaluations, shape="height_map")
+
+
+def compile_kernels() -> None:
+    """Runs the shape estimate once on readings of a box predicted from two views, so that numba
+    compiles its kernels and caches them on disk. A cold cache costs a process about 5 s the
+    first time it fits (the report written after a fault on the real cell too): `make` calls
+    this right after installing."""
+    model = SensorModelParams()
+    box = OrientedBox(np.array([0.5, 0.0, 0.05]), np.array([0.12, 0.08, 0.10]), 0.0)
+    x = np.array([*box.center[:2], box.yaw, *box.dims])
+    frame = ToFFrame(distance_mm=np.full((8, 8), 300, np.int32), status=np.full((8, 8), 5),
+                     sigma_mm=np.full((8, 8), 5), sequence=1, timestamp_us=0)
+    rays = ZoneRays.empty(model.subsamples ** 2)
+    for eye in ([0.5, 0.0, 0.45], [0.78, 0.1, 0.2]):
+        view = zone_rays(frame, look_at(np.array(eye), box.center), model)
+        view.measured[:] = np.nan_to_num(predicted_depths(view, x, 0.0, model), nan=0.3)
+        rays = rays.extend(view)
+    fit = fit_box(rays, box, 0.0, model)
+    fit_height_map(rays, fit.box if fit else box, 0.0, model)
+
+if __name__ == "__main__":
+    compile_kernels()
