@@ -18,6 +18,7 @@ from lrnbv_drake.core.height_map_fit import (
     HeightMapParams,
     ShapeEstimator,
     _box_columns,
+    _Clip,
     _needed_parts,
     _Readings,
     fit_height_map,
@@ -45,13 +46,16 @@ def _rays_of(box: OrientedBox, model: SensorModelParams, views: list[np.ndarray]
 
 
 def test_columns_of_a_box_predict_what_the_box_fit_predicts():
-    """A height map that is a box (its sides on cell edges) seen from above and the side: the
-    same readings as the box fit's slab caster, to the micrometre, on every zone."""
+    """A height map that is a box (its sides on cell edges) seen from above, from the side and
+    from 7 cm up (some sub-rays there rise, and still hit its side): the same readings as the
+    box fit's slab caster, to the micrometre, on every zone."""
     model = SensorModelParams()
     box = OrientedBox(np.array([0.5, 0.0, 0.05]), np.array([0.12, 0.08, 0.10]), 0.0)
     views = [look_at([0.5, 0.0, 0.45], [0.5, 0.0, 0.05]),
-             look_at([0.78, 0.1, 0.2], [0.5, 0.0, 0.05])]
+             look_at([0.78, 0.1, 0.2], [0.5, 0.0, 0.05]),
+             look_at([0.75, 0.0, 0.07], [0.5, 0.0, 0.05])]
     rays = _rays_of(box, model, views)
+    assert np.any(rays.directions[..., 2] > 0)  # the low view's upper sub-rays rise
     edges_x, edges_y = np.arange(-0.1, 0.1001, 0.01), np.arange(-0.08, 0.0801, 0.01)
     origin, to_grid = np.array([0.5, 0.0, 0.0]), np.eye(3)
     readings = _Readings(rays, origin, to_grid, 0.0, 0.3, model, BoxFitParams())
@@ -83,6 +87,22 @@ def test_a_part_the_readings_do_not_need_is_dropped_and_one_they_need_is_kept():
     out = _needed_parts(readings, edges_x, edges_y, grid, expected, HeightMapParams())
     assert np.all(out[1, 0:2] == 0.0)
     np.testing.assert_array_equal(out[14:16], grid[14:16])
+
+
+def test_the_clip_of_a_block_the_readings_do_not_see_never_turns_inside_out():
+    """Readings of the bare table and a 2 cm block of columns they contradict: the clip's sides
+    may close in on it but never pass each other."""
+    model = SensorModelParams()
+    flat = OrientedBox(np.array([0.5, 0.0, 0.0005]), np.array([0.3, 0.3, 0.001]), 0.0)
+    rays = _rays_of(flat, model, [look_at([0.5, 0.0, 0.4], [0.5, 0.0, 0.0]),
+                                  look_at([0.7, 0.1, 0.25], [0.5, 0.0, 0.0])])
+    edges = np.arange(-0.05, 0.0501, 0.01)
+    readings = _Readings(rays, np.array([0.5, 0.0, 0.0]), np.eye(3), 0.0, 0.1, model,
+                         BoxFitParams())
+    grid = np.zeros((10, 10))
+    grid[4:6, 4:6] = 0.03
+    clip, cost = _Clip(readings, edges, edges, grid, HeightMapParams()).search()
+    assert clip[0] < clip[1] and clip[2] < clip[3] and np.isfinite(cost)
 
 
 def _object_file(tmp_path, meshes: list[trimesh.Trimesh]) -> str:

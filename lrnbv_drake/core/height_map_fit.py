@@ -104,6 +104,11 @@ class HeightMap:
     box: OrientedBox | None
     dims_lower: np.ndarray
     dims_upper: np.ndarray
+    # The box's sides along the grid's x and y and its height (the box's dims before they are
+    # ordered length first): what compares with the box fit the grid is aligned with.
+    extents: np.ndarray | None
+    # The readings' cost for the box's columns (or the whole map when there is no box), in
+    # the box fit's units: the soft-L1 sum, uncapped, without the prior.
     cost: float
     zones: int
 
@@ -119,10 +124,14 @@ def _crossings(o, d, edges_x, edges_y, hmax, start, cell, t_in, t_out):
     for r in range(o.shape[0]):
         start[r] = count
         dz = d[r, 2]
-        if dz >= 0.0:
+        if dz < 0.0:  # down: from hmax to the table
+            ta, tb = max((hmax - o[r, 2]) / dz, 0.0), -o[r, 2] / dz
+        elif dz > 0.0:  # up (a low view): from the table to hmax
+            ta, tb = max(-o[r, 2] / dz, 0.0), (hmax - o[r, 2]) / dz
+        elif 0.0 <= o[r, 2] <= hmax:  # level, within the columns' height
+            ta, tb = 0.0, np.inf
+        else:
             continue
-        ta, tb = (hmax - o[r, 2]) / dz, -o[r, 2] / dz
-        ta = max(ta, 0.0)
         for axis, edges in ((0, edges_x), (1, edges_y)):
             lo, hi, dv, ov = edges[0], edges[-1], d[r, axis], o[r, axis]
             if dv == 0.0:
@@ -160,17 +169,16 @@ def _crossings(o, d, edges_x, edges_y, hmax, start, cell, t_in, t_out):
 
 @numba.njit(cache=True)
 def _hit(oz, dz, ta, tb, h):
-    """Depth at which a ray crossing a column over [ta, tb] meets its top at height h (or its
-    side), inf if it passes over."""
+    """Depth at which a ray crossing a column over [ta, tb] meets its side (it enters below
+    h) or, going down, its top at height h; inf if it passes over."""
     if h <= 0.0:
-        return np.inf
-    z_b = oz + tb * dz
-    if h < z_b:
         return np.inf
     z_a = oz + ta * dz
     if h >= z_a:
         return ta
-    return (h - oz) / dz
+    if dz < 0.0 and h >= oz + tb * dz:
+        return (h - oz) / dz
+    return np.inf
 
 
 @numba.njit(cache=True)
@@ -503,18 +511,21 @@ def fit_height_map(rays: ZoneRays, start: OrientedBox, table_height: float,
     edges_x, edges_y, grid = previous
     grid = _needed_parts(readings, edges_x, edges_y, grid, expected, params)
     keep = _object_columns(grid, params.min_height)
-    box, lower, upper = None, np.full(3, np.nan), np.full(3, np.nan)
+    box, lower, upper, extents = None, np.full(3, np.nan), np.full(3, np.nan), None
     if keep.any() and (not screen or _outside(np.where(keep, grid, 0.0), expected,
                                               params.min_height)):
         clipper = _Clip(readings, edges_x, edges_y, np.where(keep, grid, 0.0), params)
-        clip, best = clipper.search()
+        clip, cost = clipper.search()
         box = _clip_box(clip, origin, start.yaw)
+        extents = np.array([clip[1] - clip[0], clip[3] - clip[2], clip[4]])
         if interval:
-            lower, upper = clipper.interval(clip, best, fit_params, model)
+            lower, upper = clipper.interval(clip, cost, fit_params, model)
             if box.dims[0] != clip[1] - clip[0]:  # the canonical box swapped length and width
                 lower, upper = lower[[1, 0, 2]], upper[[1, 0, 2]]
+    else:
+        cost = readings.cost(edges_x, edges_y, grid)
     return HeightMap(grid, edges_x, edges_y, origin[:2].copy(), float(start.yaw), box,
-                     lower, upper, float(cost), len(rays))
+                     lower, upper, extents, float(cost), len(rays))
 
 
 def _outside(grid: np.ndarray, expected: np.ndarray, min_height: float) -> bool:
@@ -557,6 +568,7 @@ def _resampled(edges_x: np.ndarray, edges_y: np.ndarray, grid: np.ndarray,
 def _clip_edges(edges_x: np.ndarray, edges_y: np.ndarray, clip: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
     x0, x1, y0, y1 = clip[:4]
+    x1, y1 = max(x1, x0), max(y1, y0)  # sides moved past each other: nothing is left
     return (np.r_[x0, edges_x[(edges_x > x0) & (edges_x < x1)], x1],
             np.r_[y0, edges_y[(edges_y > y0) & (edges_y < y1)], y1])
 
@@ -618,6 +630,11 @@ class _Clip:
         for _ in range(3):
             moved = False
             for i in range(5):
+                # A side stays a cell from its opposite one.
+                if i in (0, 2):
+                    upper[i] = min(upper[i], clip[i + 1] - size)
+                elif i in (1, 3):
+                    lower[i] = max(lower[i], clip[i - 1] + size)
                 near = self._near(i, max(lower[i], clip[i] - reach),
                                   min(upper[i], clip[i] + reach))
                 best = self.cost(clip, readings=near)
@@ -649,6 +666,9 @@ class _Clip:
         inside = ((cx > clip[0]) & (cx < clip[1]))[:, None] \
             & ((cy > clip[2]) & (cy < clip[3]))[None, :]
         raised = inside & (grid > self.params.min_height)
+        if not raised.any():
+            self.plateau = raised
+            return float(clip[4])
         reference = float(np.percentile(grid[raised], 99))
         self.plateau = raised & (np.abs(grid - reference) <= self.params.plateau)
         top = reference
@@ -765,7 +785,8 @@ class ShapeEstimator(BoxEstimator):
             return None
         shape = fit_height_map(self._rays, fit.box, self._table_height, self._model,
                                self._params, self._shape, interval, screen=True)
-        if shape is None or shape.box is None or not np.any(shape.box.dims > fit.dims_upper):
+        # The grid is aligned with the fitted box, whose length runs along its x.
+        if shape is None or shape.box is None or not np.any(shape.extents > fit.dims_upper):
             return fit
         return BoxFit(shape.box, shape.dims_lower, shape.dims_upper, shape.cost, shape.zones,
                       fit.n_evaluations, shape="height_map")
