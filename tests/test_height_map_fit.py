@@ -9,6 +9,7 @@ from rendered_views import NOISE_FREE, render, start_near
 from lrnbv_drake.core.box_fit import (
     BoxFitParams,
     ZoneRays,
+    _as_vector,
     predicted_depths,
     reduction_rule,
     zone_rays,
@@ -37,7 +38,7 @@ def _rays_of(box: OrientedBox, model: SensorModelParams, views: list[np.ndarray]
     """Each view's zones with the readings the box fit's own caster predicts (any valid depth
     first, then replaced by the prediction)."""
     rays = ZoneRays.empty(model.subsamples ** 2)
-    x = np.array([*box.center[:2], box.yaw, *box.dims])
+    x = _as_vector(box)
     for X in views:
         r = zone_rays(_frame(np.full(64, 0.3)), X, model)
         r.measured[:] = predicted_depths(r, x, 0.0, model)
@@ -45,21 +46,29 @@ def _rays_of(box: OrientedBox, model: SensorModelParams, views: list[np.ndarray]
     return rays
 
 
+BOX = OrientedBox(np.array([0.5, 0.0, 0.05]), np.array([0.12, 0.08, 0.10]), 0.0)
+
+
+def _box_scene(eyes: list[list[float]]):
+    """Readings of BOX from `eyes` (looking at its centre), on a 1 cm grid around it whose cell
+    edges fall on its sides, and BOX as columns on that grid: (rays, readings, edges_x,
+    edges_y, grid)."""
+    model = SensorModelParams()
+    rays = _rays_of(BOX, model, [look_at(eye, BOX.center) for eye in eyes])
+    edges_x, edges_y = np.arange(-0.1, 0.1001, 0.01), np.arange(-0.08, 0.0801, 0.01)
+    origin, to_grid = np.array([0.5, 0.0, 0.0]), np.eye(3)
+    readings = _Readings(rays, origin, to_grid, 0.0, 0.3, model, BoxFitParams())
+    grid = _box_columns(edges_x, edges_y, BOX, 0.0, origin, to_grid)
+    return rays, readings, edges_x, edges_y, grid
+
+
 def test_columns_of_a_box_predict_what_the_box_fit_predicts():
     """A height map that is a box (its sides on cell edges) seen from above, from the side and
     from 7 cm up (some sub-rays there rise, and still hit its side): the same readings as the
     box fit's slab caster, to the micrometre, on every zone."""
-    model = SensorModelParams()
-    box = OrientedBox(np.array([0.5, 0.0, 0.05]), np.array([0.12, 0.08, 0.10]), 0.0)
-    views = [look_at([0.5, 0.0, 0.45], [0.5, 0.0, 0.05]),
-             look_at([0.78, 0.1, 0.2], [0.5, 0.0, 0.05]),
-             look_at([0.75, 0.0, 0.07], [0.5, 0.0, 0.05])]
-    rays = _rays_of(box, model, views)
+    rays, readings, edges_x, edges_y, grid = _box_scene(
+        [[0.5, 0.0, 0.45], [0.78, 0.1, 0.2], [0.75, 0.0, 0.07]])
     assert np.any(rays.directions[..., 2] > 0)  # the low view's upper sub-rays rise
-    edges_x, edges_y = np.arange(-0.1, 0.1001, 0.01), np.arange(-0.08, 0.0801, 0.01)
-    origin, to_grid = np.array([0.5, 0.0, 0.0]), np.eye(3)
-    readings = _Readings(rays, origin, to_grid, 0.0, 0.3, model, BoxFitParams())
-    grid = _box_columns(edges_x, edges_y, box, 0.0, origin, to_grid)
     assert grid.max() == pytest.approx(0.10) and (grid > 0).sum() == 12 * 8
     # Every zone explained exactly costs nothing; the box 2 cm shorter costs something.
     assert readings.cost(edges_x, edges_y, grid) == pytest.approx(0.0, abs=1e-9)
@@ -71,16 +80,8 @@ def test_columns_of_a_box_predict_what_the_box_fit_predicts():
 def test_a_part_the_readings_do_not_need_is_dropped_and_one_they_need_is_kept():
     """Readings of a 12 x 8 cm box; a height map with the box, a 2-column stub beside it that
     no reading sees, and the box's true last 2 cm row left out of the expected footprint."""
-    model = SensorModelParams()
-    box = OrientedBox(np.array([0.5, 0.0, 0.05]), np.array([0.12, 0.08, 0.10]), 0.0)
-    views = [look_at([0.5, 0.0, 0.45], [0.5, 0.0, 0.05]),
-             look_at([0.78, 0.0, 0.25], [0.5, 0.0, 0.05]),
-             look_at([0.22, 0.0, 0.25], [0.5, 0.0, 0.05])]
-    rays = _rays_of(box, model, views)
-    edges_x, edges_y = np.arange(-0.1, 0.1001, 0.01), np.arange(-0.08, 0.0801, 0.01)
-    origin, to_grid = np.array([0.5, 0.0, 0.0]), np.eye(3)
-    readings = _Readings(rays, origin, to_grid, 0.0, 0.3, model, BoxFitParams())
-    grid = _box_columns(edges_x, edges_y, box, 0.0, origin, to_grid)
+    _, readings, edges_x, edges_y, grid = _box_scene(
+        [[0.5, 0.0, 0.45], [0.78, 0.0, 0.25], [0.22, 0.0, 0.25]])
     expected = grid.copy()
     expected[14:16] = 0.0  # the fit expected a box 2 cm shorter
     grid[1, 0:2] = 0.02  # a stub in a corner under the field of view's edge

@@ -43,6 +43,7 @@ from lrnbv_drake.core.box_fit import (
     BoxFit,
     BoxFitParams,
     ZoneRays,
+    _as_vector,
     _reduce_sorted,
     _table_depths,
     fit_box,
@@ -341,16 +342,23 @@ def _descend(o, d, measured, sigma, m, table_t, start, cell, t_in, t_out, cell_s
 
 
 @numba.njit(cache=True)
+def _all_crossings(o, d, edges_x, edges_y, hmax):
+    """`_crossings` counted, then filled: (start, cell, t_in, t_out)."""
+    start = np.empty(o.shape[0] + 1, np.int64)
+    empty_i, empty_f = np.empty(0, np.int64), np.empty(0)
+    total = _crossings(o, d, edges_x, edges_y, hmax, start, empty_i, empty_f, empty_f)
+    cell, t_in, t_out = np.empty(total, np.int64), np.empty(total), np.empty(total)
+    _crossings(o, d, edges_x, edges_y, hmax, start, cell, t_in, t_out)
+    return start, cell, t_in, t_out
+
+
+@numba.njit(cache=True)
 def _data_cost(o, d, table_t, measured, sigma, m, edges_x, edges_y, heights, hmax, rule_args,
                loss_scale, no_return):
     """The zones' summed cost for the columns `heights` (flat) on the grid `edges_x`,
     `edges_y`, which need not be uniform."""
     n_rays = o.shape[0]
-    start = np.empty(n_rays + 1, np.int64)
-    empty_i, empty_f = np.empty(0, np.int64), np.empty(0)
-    total = _crossings(o, d, edges_x, edges_y, hmax, start, empty_i, empty_f, empty_f)
-    cell, t_in, t_out = np.empty(total, np.int64), np.empty(total), np.empty(total)
-    _crossings(o, d, edges_x, edges_y, hmax, start, cell, t_in, t_out)
+    start, cell, t_in, t_out = _all_crossings(o, d, edges_x, edges_y, hmax)
     depth = np.empty(n_rays)
     for r in range(n_rays):
         depth[r] = _first_hit(r, start[r], o, d, start, cell, t_in, t_out, heights,
@@ -449,12 +457,8 @@ class _Readings:
         """Coordinate descent over the flat `heights` where `active`, in place (`_descend`);
         the cost."""
         nx, ny = len(edges_x) - 1, len(edges_y) - 1
-        ray_start = np.empty(len(self.o) + 1, np.int64)
-        empty_i, empty_f = np.empty(0, np.int64), np.empty(0)
-        total = _crossings(self.o, self.d, edges_x, edges_y, self.hmax, ray_start, empty_i,
-                           empty_f, empty_f)
-        cell, t_in, t_out = np.empty(total, np.int64), np.empty(total), np.empty(total)
-        _crossings(self.o, self.d, edges_x, edges_y, self.hmax, ray_start, cell, t_in, t_out)
+        ray_start, cell, t_in, t_out = _all_crossings(self.o, self.d, edges_x, edges_y,
+                                                      self.hmax)
         order = np.argsort(cell, kind="stable").astype(np.int64)
         cell_start = np.searchsorted(cell[order], np.arange(nx * ny + 1)).astype(np.int64)
         cross_ray = np.repeat(np.arange(len(self.o)), np.diff(ray_start))
@@ -799,7 +803,7 @@ def compile_kernels() -> None:
     this right after installing."""
     model = SensorModelParams()
     box = OrientedBox(np.array([0.5, 0.0, 0.05]), np.array([0.12, 0.08, 0.10]), 0.0)
-    x = np.array([*box.center[:2], box.yaw, *box.dims])
+    x = _as_vector(box)
     frame = ToFFrame(distance_mm=np.full((8, 8), 300, np.int32), status=np.full((8, 8), 5),
                      sigma_mm=np.full((8, 8), 5), sequence=1, timestamp_us=0)
     rays = ZoneRays.empty(model.subsamples ** 2)
