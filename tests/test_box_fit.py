@@ -179,3 +179,18 @@ def test_a_merging_model_predicts_the_signal_weighted_depth_of_a_zone():
     nearest = predicted_depths(rays, x, 0.0, model)
     straddling = (samples.min(axis=1) < 0.45) & (samples.max(axis=1) > 0.45)
     assert straddling.any() and np.all(depth[straddling] > nearest[straddling] + 1e-3)
+
+
+def test_the_readings_width_is_wide_for_sides_no_view_saw_from_outside():
+    """The horizontal box (length along x) from straight above only: the view's +-22.5 degrees
+    end 12 cm from the centre, inside both ends, so no reading bounds the length; with all nine
+    views both ends are seen beside the box and the readings pin every dimension within 1 cm."""
+    frames, truth, model = _render("object: {name: horizontal_box}\n" + NOISE_FREE)
+    top = [(f, X) for f, X in frames if np.allclose(X[:2, 3], truth.center[:2], atol=0.01)]
+    assert len(top) == 1
+    above = _fit(top, _start(truth), model)
+    full = _fit(frames, _start(truth), model)
+    assert above.readings_width[0] > 0.1, above.readings_width
+    assert np.all(full.readings_width < 0.01), full.readings_width
+    # The reported interval is the readings' part and the widening on top of it.
+    assert np.all(full.dims_upper - full.dims_lower > full.readings_width)

@@ -11,10 +11,12 @@ from lrnbv_drake.core.sensor import ToFFrame
 
 
 class Scripted:
-    """A stand-in estimator whose fit after the n-th frame has the n-th scripted dims."""
+    """A stand-in estimator whose fit after the n-th frame has the n-th scripted dims and,
+    when asked for its interval, the n-th scripted readings width (1 mm unless given)."""
 
-    def __init__(self, dims_mm):
+    def __init__(self, dims_mm, widths_mm=None):
         self.dims = [None if d is None else np.array(d) / 1000 for d in dims_mm]
+        self.widths = [np.array(w) / 1000 for w in widths_mm or [(1, 1, 1)] * len(dims_mm)]
         self.added = 0
         self.starts = []
 
@@ -24,15 +26,17 @@ class Scripted:
     def estimate(self, start, interval=True):
         self.starts.append(start)
         d = self.dims[self.added - 1]
-        return None if d is None else types.SimpleNamespace(box=OrientedBox(np.zeros(3), d))
+        width = self.widths[self.added - 1] if interval else None
+        return None if d is None else types.SimpleNamespace(
+            box=OrientedBox(np.zeros(3), d), readings_width=width)
 
 
 def _acquisitions(n):
     return [(ToFFrame.empty(), np.eye(4))] * n
 
 
-def _first_stop(dims_mm, params):
-    dut = BoxStop(Scripted(dims_mm), params)
+def _first_stop(dims_mm, params, widths_mm=None):
+    dut = BoxStop(Scripted(dims_mm, widths_mm), params)
     for n in range(1, len(dims_mm) + 1):
         if dut.update(_acquisitions(n), None) is not None:
             return n
@@ -56,6 +60,16 @@ def test_it_waits_for_the_minimum_and_for_an_estimate():
     assert _first_stop([None, *still[:3]], BoxStopParams(0.005, 2, 1)) == 4
 
 
+def test_a_still_box_with_a_side_the_readings_do_not_bound_does_not_stop():
+    """Seed 0 of the horizontal box: the dimensions held still from pose 5 while no view had
+    seen beyond the far end (a 118 mm wide length); it stops once a view bounds it."""
+    still = [(297, 201, 120)] * 8
+    widths = [(118, 4, 1)] * 6 + [(12, 3, 1)] * 2
+    assert _first_stop(still, BoxStopParams(0.005, 2, 4), widths) == 7
+    assert _first_stop(still, BoxStopParams(0.005, 2, 4, interval_width=0.2), widths) == 4
+    assert _first_stop(still, BoxStopParams(0.005, 2, 4, interval_width=0.01), widths) is None
+
+
 def test_each_acquisition_is_added_once_and_the_cell_box_starts_the_fit():
     estimator = Scripted([(300, 200, 120)] * 3)
     dut = BoxStop(estimator, BoxStopParams())
@@ -68,3 +82,5 @@ def test_each_acquisition_is_added_once_and_the_cell_box_starts_the_fit():
 def test_bad_thresholds_are_refused():
     with pytest.raises(ValueError, match="tolerance"):
         BoxStopParams(tolerance=0.0)
+    with pytest.raises(ValueError, match="interval_width"):
+        BoxStopParams(interval_width=0.0)

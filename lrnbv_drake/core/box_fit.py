@@ -98,6 +98,11 @@ class BoxFit:
     # What the box bounds: "box" (the fitted solid box) or "height_map" (the bounding box of
     # the height map `height_map_fit` fits where the readings need more than a box).
     shape: str = "box"
+    # (3,) the part of each interval the readings set: how far the dimension's sides move out
+    # and in before the cost rises, without the widening for what the model does not capture.
+    # A side no reading bounds makes it large (up to 2 x `interval_max_m` a side). None: not
+    # computed.
+    readings_width: np.ndarray | None = None
 
     @property
     def dims_halfwidth(self) -> np.ndarray:
@@ -491,10 +496,13 @@ def fit_box(rays: ZoneRays, start: OrientedBox, table_height: float,
     upper = x[3:] + np.array([out[0] + out[1], out[2] + out[3], out[4]]) + widen
     box = OrientedBox(np.array([x[0], x[1], table_height + abs(x[5]) / 2]),
                       np.abs(x[3:]), float(x[2]))
+    moves = out + inward
+    width = np.array([moves[0] + moves[1], moves[2] + moves[3], moves[4]])
     lower = np.maximum(lower, 0.0)
     if box.dims[0] != abs(x[3]):  # the canonical box swapped length and width
-        lower, upper = lower[[1, 0, 2]], upper[[1, 0, 2]]
-    return BoxFit(box, lower, upper, best, len(rays), search.evaluations)
+        lower, upper, width = lower[[1, 0, 2]], upper[[1, 0, 2]], width[[1, 0, 2]]
+    return BoxFit(box, lower, upper, best, len(rays), search.evaluations,
+                  readings_width=None if not interval else width)
 
 
 def profile_move(cost, p: np.ndarray, index: int, sign: int, best: float,

@@ -197,7 +197,8 @@ def make_stop(planner: str, scenario: Scenario) -> BoxStop | None:
     return BoxStop(BoxEstimator(sensor_params(scenario), scenario.cell.table_height,
                                 box_fit_params(scenario)),
                    BoxStopParams(tolerance=stop.tolerance, stable_poses=stop.stable_poses,
-                                 min_poses=stop.min_poses))
+                                 min_poses=stop.min_poses,
+                                 interval_width=stop.interval_width))
 
 
 def container_catalogue(scenario: Scenario) -> list[Container]:

@@ -6,7 +6,13 @@ stopped changing after 7-9, and the same object and planner stopping after 10 or
 The product's question is whether the box is known, so `BoxStop` asks the box: after each
 pose the sensor-model estimate is refitted (warm-started), and the episode ends when every
 dimension has moved less than `tolerance` over the last `stable_poses` poses, once at least
-`min_poses` were taken.
+`min_poses` were taken, and the readings bound every dimension to within `interval_width`.
+
+Why the second condition: a box can hold still because no new view sees one of its sides. On
+the horizontal box (seed 0) LR-NBV stopped after 7 poses with the far end unseen: the length
+was 3 mm off by luck, its interval 12 cm wide, and the container two sizes too large. The
+width is the readings' part of the box fit's profile interval (`BoxFit.readings_width`), so
+a side nobody saw from outside keeps the episode going.
 """
 
 from __future__ import annotations
@@ -31,11 +37,14 @@ class BoxStopParams:
     stable_poses: int = 2
     # Fewest poses before the rule may stop.
     min_poses: int = 4
+    # Widest the readings may leave any dimension (`BoxFit.readings_width`), metres.
+    interval_width: float = 0.02
 
     def __post_init__(self) -> None:
-        if not self.tolerance > 0 or self.stable_poses < 1 or self.min_poses < 1:
-            raise ValueError(f"BoxStopParams needs tolerance > 0, stable_poses >= 1 and "
-                             f"min_poses >= 1; got {self}")
+        if (not self.tolerance > 0 or self.stable_poses < 1 or self.min_poses < 1
+                or not self.interval_width > 0):
+            raise ValueError(f"BoxStopParams needs tolerance > 0, stable_poses >= 1, "
+                             f"min_poses >= 1 and interval_width > 0; got {self}")
 
 
 class BoxStop:
@@ -65,8 +74,12 @@ class BoxStop:
                                                                          for d in recent):
             return None
         spread = np.ptp(np.array(recent), axis=0)
-        if np.all(spread < p.tolerance):
-            return (f"the box held still: every dimension moved less than "
-                    f"{1000 * p.tolerance:.0f} mm over the last {p.stable_poses} poses "
-                    f"({' x '.join(f'{v:.3f}' for v in recent[-1])} m)")
-        return None
+        if not np.all(spread < p.tolerance):
+            return None
+        fit = self._estimator.estimate(cell_box)  # the same box, now with its interval
+        if fit is None or not np.all(fit.readings_width <= p.interval_width):
+            return None
+        return (f"the box held still: every dimension moved less than "
+                f"{1000 * p.tolerance:.0f} mm over the last {p.stable_poses} poses and the "
+                f"readings bound each within {1000 * p.interval_width:.0f} mm "
+                f"({' x '.join(f'{v:.3f}' for v in recent[-1])} m)")
