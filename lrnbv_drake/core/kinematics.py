@@ -1,8 +1,10 @@
-"""UR5e kinematics as plain numpy: constants, forward kinematics and the closed-form inverse.
+"""UR5e kinematics without Drake: constants, forward kinematics and the closed-form inverse.
 
 No Drake here, so the planner can rank hundreds of candidate views per iteration in
 milliseconds; `tests/test_kinematics.py` checks every number against the MultibodyPlant built
 from `models/ur5e/ur5e.urdf` (which `models/ur5e/make_urdf.py` generates from these constants).
+The numeric core is numba kernels looping over targets: the planner asks for ~10 at a time,
+which vectorised numpy spent mostly in per-call overhead.
 
 Frames (those of the ROS2 `ur_description`, which the URDF reproduces):
 - `base_link` is REP-103 aligned (x forward, z up): the frame the cell welds to the table.
@@ -15,12 +17,16 @@ Frames (those of the ROS2 `ur_description`, which the URDF reproduces):
 Every transform here is `tool0` expressed in `base` (X_base_tool0), in metres.
 
 The inverse follows the standard analytic solution for UR arms (Hawkins 2013, "Analytic
-Inverse Kinematics for the Universal Robots UR-5/UR-10 Arms"), vectorised over targets.
+Inverse Kinematics for the Universal Robots UR-5/UR-10 Arms"), batched over targets.
 """
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
+from numba.extending import register_jitable
 
 #: Standard DH parameters of the UR5e (Universal Robots, "DH parameters for calculations of
 #: kinematics and dynamics"), metres and radians. UR's "a" is the common-normal length.
@@ -54,35 +60,89 @@ for _array in (DH_D, DH_A, DH_ALPHA, JOINT_UPPER, JOINT_LOWER, VELOCITY_LIMIT,
                ACCELERATION_LIMIT, EFFORT_LIMIT, HOME):
     _array.setflags(write=False)
 
+# cos and sin of the DH twists, for the kernels (computed once: they are constants).
+_COS_ALPHA, _SIN_ALPHA = np.cos(DH_ALPHA), np.sin(DH_ALPHA)
+
 # Below this |sin(q5)| the wrist is singular (joints 4 and 6 aligned) and q6 is free.
 _WRIST_SINGULAR_SIN = 1e-10
 
 
-def _dh(theta: np.ndarray, i: int) -> np.ndarray:
-    """(..., 4, 4) DH transform of joint i (0-based): Rz(theta) Tz(d) Tx(a) Rx(alpha)."""
-    ct, st = np.cos(theta), np.sin(theta)
-    ca, sa = np.cos(DH_ALPHA[i]), np.sin(DH_ALPHA[i])
-    T = np.zeros((*np.shape(theta), 4, 4))
-    T[..., 0, 0], T[..., 0, 1], T[..., 0, 2], T[..., 0, 3] = ct, -st * ca, st * sa, DH_A[i] * ct
-    T[..., 1, 0], T[..., 1, 1], T[..., 1, 2], T[..., 1, 3] = st, ct * ca, -ct * sa, DH_A[i] * st
-    T[..., 2, 1], T[..., 2, 2], T[..., 2, 3] = sa, ca, DH_D[i]
-    T[..., 3, 3] = 1.0
-    return T
+def _as_kernel_array(a: np.ndarray) -> np.ndarray:
+    """`a` as a C-contiguous, writeable float64 array (a copy only if needed): numba compiles a
+    kernel once per argument type, and read-only (`HOME`) or strided arrays are other types."""
+    a = np.ascontiguousarray(a, dtype=float)
+    return a if a.flags.writeable else a.copy()
 
 
-def _inv(T: np.ndarray) -> np.ndarray:
-    """Inverse of (..., 4, 4) rigid transforms."""
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out = np.zeros_like(T)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
+def _filled(shape: tuple[int, ...], value: float | np.ndarray) -> np.ndarray:
+    """A new float64 array of `shape` with `value` broadcast into it: a kernel argument as
+    `_as_kernel_array` makes them, without np.broadcast_to's ~2 us per call."""
+    out = np.empty(shape)
+    out[...] = value
     return out
+
+
+@register_jitable
+def _wrap(q):
+    """q wrapped to [-pi, pi): the one formula, numpy on arrays from Python (`wrap_to_pi`)
+    and scalar inside the kernels."""
+    return (q + np.pi) % (2 * np.pi) - np.pi
 
 
 def wrap_to_pi(q: np.ndarray) -> np.ndarray:
     """Angles wrapped to [-pi, pi)."""
-    return (np.asarray(q) + np.pi) % (2 * np.pi) - np.pi
+    return _wrap(np.asarray(q))
+
+
+@numba.njit(cache=True)
+def _dh(theta, i, out):
+    """out (4, 4) = DH transform of joint i (0-based): Rz(theta) Tz(d) Tx(a) Rx(alpha)."""
+    ct, st = math.cos(theta), math.sin(theta)
+    ca, sa = _COS_ALPHA[i], _SIN_ALPHA[i]
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = ct, -st * ca, st * sa, DH_A[i] * ct
+    out[1, 0], out[1, 1], out[1, 2], out[1, 3] = st, ct * ca, -ct * sa, DH_A[i] * st
+    out[2, 0], out[2, 1], out[2, 2], out[2, 3] = 0.0, sa, ca, DH_D[i]
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+
+
+@numba.njit(cache=True)
+def _inv(T, out):
+    """out (4, 4) = inverse of the rigid transform T."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = T[j, i]
+        out[i, 3] = -(T[0, i] * T[0, 3] + T[1, i] * T[1, 3] + T[2, i] * T[2, 3])
+        out[3, i] = 0.0
+    out[3, 3] = 1.0
+
+
+@numba.njit(cache=True)
+def _mul_right(A, B):
+    """A = A @ B for (4, 4) matrices, in place (row by row, so no temporary)."""
+    for i in range(4):
+        a0, a1, a2, a3 = A[i, 0], A[i, 1], A[i, 2], A[i, 3]
+        for j in range(4):
+            A[i, j] = a0 * B[0, j] + a1 * B[1, j] + a2 * B[2, j] + a3 * B[3, j]
+
+
+@numba.njit(cache=True)
+def _fk(q, out):
+    """out (4, 4) = X_base_tool0 for one configuration q (6,): the product of the DH
+    transforms. The only forward kinematics: `forward_kinematics` and the IK's check use it."""
+    D = np.empty((4, 4))
+    _dh(q[0], 0, out)
+    for i in range(1, 6):
+        _dh(q[i], i, D)
+        _mul_right(out, D)
+
+
+@numba.njit(cache=True)
+def _fk_kernel(q):
+    """(n, 4, 4) forward kinematics of (n, 6) configurations."""
+    X = np.empty((q.shape[0], 4, 4))
+    for n in range(q.shape[0]):
+        _fk(q[n], X[n])
+    return X
 
 
 def forward_kinematics(q: np.ndarray) -> np.ndarray:
@@ -98,11 +158,7 @@ def forward_kinematics(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     if q.shape[-1:] != (6,):
         raise ValueError(f"q must have shape (..., 6); got {q.shape}")
-    X = _dh(q[..., 0], 0)
-    for i in range(1, 6):
-        X = X @ _dh(q[..., i], i)
-    return X
-
+    return _fk_kernel(_as_kernel_array(q.reshape(-1, 6))).reshape(*q.shape[:-1], 4, 4)
 
 
 def sensor_pose(q: np.ndarray, X_W_base: np.ndarray, X_tool0_S: np.ndarray) -> np.ndarray:
@@ -112,6 +168,86 @@ def sensor_pose(q: np.ndarray, X_W_base: np.ndarray, X_tool0_S: np.ndarray) -> n
     checks all call it."""
     return X_W_base @ forward_kinematics(np.asarray(q, float)) @ X_tool0_S
 
+
+@numba.njit(cache=True)
+def _clip_unit(x):
+    """x clipped to [-1, 1]; NaN stays NaN (an unreachable target stays not ok)."""
+    return -1.0 if x < -1.0 else (1.0 if x > 1.0 else x)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _ik_kernel(X, q6_hint, lower, upper, tol):
+    """`inverse_kinematics` on (n, 4, 4) targets: (Q (n, 8, 6), ok (n, 8)). Scalar loops, as a
+    planner's few targets per call would spend their time in numpy's per-call overhead."""
+    n = X.shape[0]
+    Q = np.zeros((n, 8, 6))
+    ok = np.zeros((n, 8), dtype=np.bool_)
+    d4, d6 = DH_D[3], DH_D[5]
+    a2, a3 = DH_A[1], DH_A[2]
+    T16, T14, D, D_inv, Xq = (np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 4)),
+                              np.empty((4, 4)), np.empty((4, 4)))
+    q = np.empty(6)
+    for t in range(n):
+        Xt = X[t]
+        # q1: the wrist centre p5 must sit d4 along joint 2's axis z1 = (s1, -c1, 0).
+        p5x = Xt[0, 3] - d6 * Xt[0, 2]
+        p5y = Xt[1, 3] - d6 * Xt[1, 2]
+        psi = math.asin(_clip_unit(d4 / math.hypot(p5x, p5y)))
+        phi = math.atan2(p5y, p5x)
+        for shoulder in range(2):
+            q[0] = phi + (psi if shoulder == 0 else np.pi - psi)
+            z1x, z1y, z1z = math.sin(q[0]), -math.cos(q[0]), 0.0
+            # z1 seen from tool0 is (s5 c6, -s5 s6, c5): gives q5 (two signs) and q6.
+            v0 = Xt[0, 0] * z1x + Xt[1, 0] * z1y + Xt[2, 0] * z1z
+            v1 = Xt[0, 1] * z1x + Xt[1, 1] * z1y + Xt[2, 1] * z1z
+            v2 = Xt[0, 2] * z1x + Xt[1, 2] * z1y + Xt[2, 2] * z1z
+            s5_abs = math.hypot(v0, v1)
+            # Joints 2-4 form a planar 3R arm in frame 1: frame 4 in frame 1 gives the rest.
+            _dh(q[0], 0, D)
+            _inv(D, T16)
+            _mul_right(T16, Xt)  # tool0 in frame 1
+            for wrist in range(2):
+                sign = 1.0 - 2.0 * wrist
+                q[4] = sign * math.atan2(s5_abs, v2)
+                q[5] = math.atan2(-sign * v1, sign * v0)
+                if s5_abs < _WRIST_SINGULAR_SIN:
+                    q[5] = q6_hint[t]
+                T14[:] = T16
+                _dh(q[5], 5, D)
+                _inv(D, D_inv)
+                _mul_right(T14, D_inv)
+                _dh(q[4], 4, D)
+                _inv(D, D_inv)
+                _mul_right(T14, D_inv)
+                px, py = T14[0, 3], T14[1, 3]
+                q234 = math.atan2(T14[1, 0], T14[0, 0])
+                c3 = _clip_unit((px**2 + py**2 - a2**2 - a3**2) / (2 * a2 * a3))
+                for elbow in range(2):
+                    k = 4 * shoulder + 2 * wrist + elbow
+                    q[2] = (1.0 - 2.0 * elbow) * math.acos(c3)
+                    q[1] = math.atan2(py, px) - math.atan2(a3 * math.sin(q[2]),
+                                                           a2 + a3 * math.cos(q[2]))
+                    q[3] = q234 - q[1] - q[2]
+                    valid = True
+                    for j in range(6):
+                        Q[t, k, j] = _wrap(q[j])
+                        valid &= (math.isfinite(Q[t, k, j]) and lower[j] <= Q[t, k, j]
+                                  and Q[t, k, j] <= upper[j])
+                    _fk(Q[t, k], Xq)
+                    pos_err2 = 0.0
+                    rot_err2 = 0.0
+                    for i in range(3):
+                        pos_err2 += (Xq[i, 3] - Xt[i, 3]) ** 2
+                        for j in range(3):
+                            rot_err2 += (Xq[i, j] - Xt[i, j]) ** 2
+                    # Frobenius distance / sqrt(2) ~ rotation angle for small errors.
+                    ok[t, k] = (valid and math.sqrt(pos_err2) <= tol
+                                and math.sqrt(rot_err2) / math.sqrt(2.0) <= tol)
+                    if not ok[t, k]:
+                        Q[t, k, :] = 0.0
+    return Q, ok
+
+
 def inverse_kinematics(
     X: np.ndarray,
     *,
@@ -120,7 +256,7 @@ def inverse_kinematics(
     upper: np.ndarray = JOINT_UPPER,
     tol: float = 1e-6,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """All closed-form solutions for X_base_tool0 targets, vectorised over targets.
+    """All closed-form solutions for a batch of X_base_tool0 targets.
 
     Branch k = 4 * shoulder + 2 * wrist + elbow, each bit picking a sign: shoulder 0 takes
     q1 = phi + asin(d4 / r) and 1 takes q1 = phi + pi - asin(d4 / r) (phi, r: polar angle and
@@ -146,59 +282,17 @@ def inverse_kinematics(
     if X.shape[-2:] != (4, 4):
         raise ValueError(f"X must have shape (..., 4, 4); got {X.shape}")
     batch = X.shape[:-2]
-    X = X.reshape(-1, 4, 4)
-    n = X.shape[0]
-    q6_hint = np.broadcast_to(np.asarray(q6_singular, dtype=float), batch).reshape(n)
-    d4, d6 = DH_D[3], DH_D[5]
-    a2, a3 = DH_A[1], DH_A[2]
-    R, p = X[:, :3, :3], X[:, :3, 3]
-
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # q1: the wrist centre p5 must sit d4 along joint 2's axis z1 = (s1, -c1, 0).
-        p5 = p - d6 * R[:, :, 2]
-        r = np.hypot(p5[:, 0], p5[:, 1])
-        psi = np.arcsin(np.clip(d4 / r, -1.0, 1.0))
-        q1 = np.arctan2(p5[:, 1], p5[:, 0])[:, None] + np.stack([psi, np.pi - psi], axis=1)
-        z1 = np.stack([np.sin(q1), -np.cos(q1), np.zeros_like(q1)], axis=-1)  # (n, 2, 3)
-
-        # z1 seen from tool0 is (s5 c6, -s5 s6, c5): gives q5 (two signs) and q6.
-        v = np.einsum("nij,nbi->nbj", R, z1)  # (n, 2, 3)
-        s5_abs = np.hypot(v[..., 0], v[..., 1])
-        sign = np.array([1.0, -1.0])
-        q5 = sign * np.arctan2(s5_abs, v[..., 2])[..., None]  # (n, 2, 2)
-        q6 = np.arctan2(-sign * v[..., 1, None], sign * v[..., 0, None])
-        q6 = np.where(s5_abs[..., None] < _WRIST_SINGULAR_SIN, q6_hint[:, None, None], q6)
-
-        # Joints 2-4 form a planar 3R arm in frame 1: frame 4 in frame 1 gives the rest.
-        T01 = _dh(q1, 0)[:, :, None]
-        T14 = _inv(T01) @ X[:, None, None] @ _inv(_dh(q6, 5)) @ _inv(_dh(q5, 4))
-        px, py = T14[..., 0, 3], T14[..., 1, 3]
-        q234 = np.arctan2(T14[..., 1, 0], T14[..., 0, 0])
-        c3 = np.clip((px**2 + py**2 - a2**2 - a3**2) / (2 * a2 * a3), -1.0, 1.0)
-        q3 = sign * np.arccos(c3)[..., None]  # (n, 2, 2, 2)
-        q2 = np.arctan2(py, px)[..., None] - np.arctan2(a3 * np.sin(q3), a2 + a3 * np.cos(q3))
-        q4 = q234[..., None] - q2 - q3
-
-        shape = (n, 2, 2, 2)
-        Q = np.stack(
-            [np.broadcast_to(q1[:, :, None, None], shape), q2, q3, q4,
-             np.broadcast_to(q5[..., None], shape), np.broadcast_to(q6[..., None], shape)],
-            axis=-1,
-        ).reshape(n, 8, 6)
-        Q = wrap_to_pi(Q)
-
-        Xq = forward_kinematics(Q)
-        pos_err = np.linalg.norm(Xq[..., :3, 3] - p[:, None], axis=-1)
-        # Frobenius distance / sqrt(2) ~ rotation angle for small errors.
-        rot_err = np.linalg.norm(Xq[..., :3, :3] - R[:, None], axis=(-2, -1)) / np.sqrt(2)
-        ok = (
-            (pos_err <= tol)
-            & (rot_err <= tol)
-            & np.all((Q >= lower) & (Q <= upper), axis=-1)
-            & np.all(np.isfinite(Q), axis=-1)
-        )
-    Q = np.where(ok[..., None], Q, 0.0)
+    Q, ok = _ik_kernel(_as_kernel_array(X.reshape(-1, 4, 4)),
+                       _filled(batch, q6_singular).reshape(-1),
+                       _filled((6,), lower), _filled((6,), upper), float(tol))
     return Q.reshape(*batch, 8, 6), ok.reshape(*batch, 8)
+
+
+def compile_kernels() -> None:
+    """Compiles the kinematics kernels into numba's on-disk cache: cold, the first IK of every
+    process (the first planning iteration) would wait seconds for them. `make` runs this after
+    installing (`python -m lrnbv_drake.core.kinematics`)."""
+    inverse_kinematics(forward_kinematics(HOME))
 
 
 def nearest_equivalents(
@@ -258,3 +352,7 @@ def closest_solution(
     q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
     found = np.any(ok, axis=-1)
     return np.where(found[..., None], q, q_current), found
+
+
+if __name__ == "__main__":
+    compile_kernels()
