@@ -3,7 +3,10 @@
 import numpy as np
 import pytest
 
+from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.sensor import ToFFrame
 from lrnbv_drake.experiments.episode import run_episode
+from lrnbv_drake.station.parts import box_estimator
 from lrnbv_drake.station.scenario import Scenario, preset
 
 
@@ -47,6 +50,23 @@ def test_lrnbv_on_the_horizontal_box_ends_when_the_box_holds_still_in_few_poses(
     assert moving <= timing["simulated_seconds"]
     assert cycle["computation_s"] >= sum(p["policy_s"] for p in timing["planning_steps"])
     assert cycle["total_s"] == pytest.approx(moving + cycle["computation_s"])
+
+
+def test_the_reported_box_is_refitted_from_frames_npz_and_the_cell_box(lrnbv):
+    """report.json's `cell_box` and frames.npz are all the estimate needs: refitted offline
+    from them, the shape estimate gives the reported box again."""
+    report, frames = lrnbv.report, np.load(lrnbv.out_dir / "frames.npz")
+    scenario = Scenario(seed=0)
+    dut = box_estimator(scenario)
+    for i in range(len(frames["X_WS"])):
+        dut.add(ToFFrame(frames["distance_mm"][i], frames["status"][i], frames["sigma_mm"][i],
+                         int(frames["sequence"][i]), int(frames["timestamp_us"][i])),
+                frames["X_WS"][i])
+    start = report["cell_box"]
+    fit = dut.estimate(OrientedBox(np.array(start["center"]), np.array(start["dims"]),
+                                   start["yaw"]))
+    np.testing.assert_allclose(fit.box.dims, report["estimated_box"]["dims"], atol=1e-9)
+    np.testing.assert_allclose(fit.dims_upper, report["estimated_box"]["dims_upper"], atol=1e-9)
 
 
 def test_the_paper_preset_stops_by_line_24_with_the_larger_cell_box(lrnbv, tmp_path):

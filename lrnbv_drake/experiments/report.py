@@ -114,6 +114,7 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
         "cycle_time": {"motion_s": cycle.motion, "settle_s": cycle.settle,
                        "computation_s": cycle.computation, "total_s": cycle.total},
         "extraction": final.reason if final is not None else "no extraction",
+        "cell_box": _cell_box_entry(_found_box(final)),
         "poses": [{
             "index": a.index,
             "time": a.time,
@@ -172,6 +173,14 @@ def _container_entry(decision: PackingDecision | None, fit: BoxFit | None
         "clearance": decision.clearance,
         "reason": decision.reason,
     }
+
+
+def _cell_box_entry(box: OrientedBox | None) -> dict[str, Any] | None:
+    """The final cell box: where the model and shape fits start, so they can be re-run on
+    frames.npz without rebuilding the map."""
+    if box is None:
+        return None
+    return {"center": box.center.tolist(), "dims": box.dims.tolist(), "yaw": float(box.yaw)}
 
 
 def _box_entry(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None
