@@ -195,7 +195,8 @@ def make_stop(planner: str, scenario: Scenario) -> BoxStop | None:
     if stop.rule == "paper" or planner == "heu":
         return None
     return BoxStop(BoxEstimator(sensor_params(scenario), scenario.cell.table_height,
-                                box_fit_params(scenario)),
+                                dc.replace(box_fit_params(scenario),
+                                           interval_cost=stop.interval_cost)),
                    BoxStopParams(tolerance=stop.tolerance, stable_poses=stop.stable_poses,
                                  min_poses=stop.min_poses,
                                  interval_width=stop.interval_width))

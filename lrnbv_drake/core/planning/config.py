@@ -58,12 +58,14 @@ class StopParams:
     # poses where line 24 took 13-21, docs/results.md): also when every dimension of the box
     # estimate has moved less than `tolerance` (m) over the last `stable_poses` poses, once
     # `min_poses` were taken and the readings bound every dimension to within
-    # `interval_width` (m; a side no view saw from outside keeps the episode going).
+    # `interval_width` (m; a side no view saw from outside keeps the episode going): a side
+    # is bounded where moving it raises the box fit's cost by `interval_cost`.
     rule: str = "box"
     tolerance: float = 0.005
     stable_poses: int = 2
     min_poses: int = 4
     interval_width: float = 0.02
+    interval_cost: float = 2.71
 
 
 @dc.dataclass
