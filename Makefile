@@ -22,11 +22,12 @@ $(STAMP): pyproject.toml
 	@# setuptools warns on every editable install that a folder named like the package shadows it:
 	@# here that folder is the package itself, so the warning says nothing.
 	PYTHONWARNINGS='ignore:Editable installation' $(BIN)/python -m pip install --quiet -e '.[test]'
-	@# Compile the numba kernels of the shape estimate and the kinematics into their on-disk
-	@# cache now: cold, the first report of every process would wait about 5 s for them (after
-	@# a fault on the cell too), and its first IK 5.5 s.
+	@# Compile the numba kernels of the shape estimate, the kinematics and look_at into their
+	@# on-disk cache now: cold, the first report of every process would wait about 5 s for them
+	@# (after a fault on the cell too), its first IK 5.5 s.
 	$(BIN)/python -m lrnbv_drake.core.height_map_fit
 	$(BIN)/python -m lrnbv_drake.core.kinematics
+	$(BIN)/python -m lrnbv_drake.core.poses
 	touch $(STAMP)
 
 run: $(STAMP)

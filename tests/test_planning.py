@@ -128,7 +128,7 @@ def _policy(**kwargs):
     params = PlannerParams(samples_per_iteration=10, **{"travel_discount": 0.0, **kwargs})
     workspace = AlignedBox(np.array([0.0, -0.5, 0.2]), np.array([0.8, 0.5, 0.7]))
     return LrNbvPolicy(params, ZoneGeometry(), workspace,
-                       ik=lambda poses, q: [np.zeros((1, 6))] * len(poses),
+                       ik=lambda poses, q: (np.zeros((len(poses), 1, 6)), np.ones(len(poses), int)),
                        collision_free=lambda q: True, seed=1)
 
 

@@ -131,20 +131,24 @@ class MotionPlanner:
         """Whether configuration q keeps the robot clear of the cell and of itself."""
         return bool(self._checker.CheckConfigCollisionFree(np.asarray(q, float)))
 
-    def ik_batch(self, X_WS: np.ndarray, q_current: np.ndarray) -> list[np.ndarray]:
-        """For each sensor pose (N, 4, 4), its IK solutions as in `ik`; one IK call for all."""
+    def ik_batch(self, X_WS: np.ndarray, q_current: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """The IK solutions of many sensor poses (N, 4, 4) in one call: (Q, n), pose i's n[i]
+        solutions (as `ik` gives them) in Q[i, :n[i]], Q (N, 8, 6). Arrays, not a list of N
+        arrays: the planner reads the solutions of only the few views it tries."""
         X_base_tool0 = self._X_base_W @ np.asarray(X_WS, float).reshape(-1, 4, 4) @ \
             self._X_S_tool0
         Q, ok = kinematics.inverse_kinematics(X_base_tool0)
         Q = kinematics.nearest_equivalents(Q, q_current)
         cost = np.where(ok, np.max(np.abs(Q - q_current) / self.max_velocity, axis=-1), np.inf)
         order = np.argsort(cost, axis=1, kind="stable")
-        return [Qi[oi[: n]] for Qi, oi, n in zip(Q, order, ok.sum(axis=1), strict=True)]
+        return Q[np.arange(len(Q))[:, None], order], ok.sum(axis=1)
 
     def ik(self, X_WS: np.ndarray, q_current: np.ndarray) -> np.ndarray:
         """All IK solutions for sensor pose X_WS, each joint at its 2-pi equivalent nearest
         q_current, sorted by the time the slowest joint needs (nearest first). Shape (k, 6)."""
-        return self.ik_batch(X_WS, np.asarray(q_current, float))[0]
+        Q, n = self.ik_batch(X_WS, np.asarray(q_current, float))
+        return Q[0, :n[0]]
 
     def plan(self, q_current: np.ndarray, X_WS: np.ndarray, start_time: float = 0.0
              ) -> MotionPlan:

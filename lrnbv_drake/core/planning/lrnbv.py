@@ -62,8 +62,8 @@ class LrNbvPolicy(ViewpointPolicy):
         params: planner parameters.
         geometry: the sensor's zones, from which the gain rays are cast.
         workspace: box the sensor positions must lie in.
-        ik: IK solutions of sensor poses (N, 4, 4) from joints q: `ik(poses, q)`, each a
-            (k, 6) array, best first.
+        ik: IK solutions of sensor poses (N, 4, 4) from joints q: `ik(poses, q)` gives
+            (Q, n), pose i's n[i] solutions best first in Q[i, :n[i]] (`Reach.ik`).
         collision_free: whether a joint configuration is collision free.
         table_height: the ROI never extends below the table top.
         seed: seed of the tree sampling.
@@ -172,11 +172,6 @@ class LrNbvPolicy(ViewpointPolicy):
                 self.cache.append(_Cached(tree.poses[i], tree.gains[i], tree.configs[i]))
                 cached.add(i)
 
-    def _cached_utilities(self, cache: Sequence[_Cached] | None = None) -> np.ndarray:
-        cache = self.cache if cache is None else cache
-        return self._utilities(Gains.concatenate([c.gains for c in cache]),
-                               [c.q for c in cache])
-
     def _update_cache(self, snapshot: PlanningSnapshot) -> float:
         """Lines 19-21: re-evaluate the cache, drop the nodes no longer above tau, keep the best
         m_i; returns the seconds it took."""
@@ -185,13 +180,12 @@ class LrNbvPolicy(ViewpointPolicy):
             poses = np.array([c.X_WS for c in self.cache])
             gains = evaluate_gains(poses, snapshot, self.rays, self.visited, self.params.gains)
             self.utility.observe(gains)
-            self.cache = [_Cached(c.X_WS, gains.take(i), c.q) for i, c in enumerate(self.cache)]
             keep = cache_capacity(self.params.num_cached_nodes, self.iteration,
                                   self.params.num_iterations)
-            utilities = self._cached_utilities()
+            utilities = self._utilities(gains, [c.q for c in self.cache])
             order = np.argsort(-utilities, kind="stable")[:keep]
-            self.cache = [self.cache[i] for i in order
-                          if utilities[i] > self.params.cache_threshold]
+            self.cache = [_Cached(self.cache[i].X_WS, gains.take(i), self.cache[i].q)
+                          for i in order if utilities[i] > self.params.cache_threshold]
         return time.perf_counter() - started
 
     # -- the policy -----------------------------------------------------------------------
@@ -211,10 +205,12 @@ class LrNbvPolicy(ViewpointPolicy):
                                  self.params.gains.density_radius)
         reevaluation_s = self._update_cache(snapshot)
         cached_before = list(self.cache)
+        cached_gains = Gains.concatenate([c.gains for c in cached_before])
+        cached_configs = [c.q for c in cached_before]
 
         def cached_utilities() -> np.ndarray:
             # Scored now: the running maxima may have grown since the cache was updated.
-            return self._cached_utilities(cached_before)
+            return self._utilities(cached_gains, cached_configs)
 
         def best_node(utilities: np.ndarray, branch: list[int]) -> tuple[int | None, float]:
             if not branch:

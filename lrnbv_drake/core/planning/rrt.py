@@ -25,10 +25,11 @@ Scorer = Callable[[np.ndarray], tuple[Gains, np.ndarray]]
 
 @dc.dataclass
 class Reach:
-    """How the robot reaches a view: IK solutions of many sensor poses (N, 4, 4) at once, best
-    first, and whether a joint configuration is collision free."""
+    """How the robot reaches a view: IK solutions of many sensor poses (N, 4, 4) at once, as
+    (Q, n) with pose i's n[i] solutions best first in Q[i, :n[i]] (Q (N, k, 6)), and whether a
+    joint configuration is collision free."""
 
-    ik: Callable[[np.ndarray], list[np.ndarray]]
+    ik: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
     collision_free: Callable[[np.ndarray], bool]
 
 
@@ -132,8 +133,8 @@ def expand_tree(tree: ViewTree | np.ndarray, n: int,
             continue
         new, nearest = new[keep], nearest[keep]
         poses = orient(new, aims)  # (B, A, 4, 4)
-        solutions = reach.ik(poses.reshape(-1, 4, 4))
-        has_ik = np.array([len(q) > 0 for q in solutions])
+        solutions, n_solutions = reach.ik(poses.reshape(-1, 4, 4))
+        has_ik = n_solutions > 0
         if not has_ik.any():
             continue
         gains, scored = score(poses.reshape(-1, 4, 4)[has_ik])
@@ -141,12 +142,15 @@ def expand_tree(tree: ViewTree | np.ndarray, n: int,
         utilities[has_ik] = scored
         index_in_scored = np.cumsum(has_ik) - 1
         fields = gains._fields()
+        n_solutions = n_solutions.tolist()
         added = []
-        for b in range(len(new)):
-            for k in np.argsort(-utilities[b * A:(b + 1) * A], kind="stable"):
+        # Each node's views, best first (a stable sort per row, as one call).
+        for b, ranked in enumerate(np.argsort(-utilities.reshape(-1, A), axis=1,
+                                              kind="stable").tolist()):
+            for k in ranked:
                 i = b * A + k
-                free = next((q for q in solutions[i] if reach.collision_free(q)), None) \
-                    if has_ik[i] else None
+                free = next((q for q in solutions[i, :n_solutions[i]]
+                             if reach.collision_free(q)), None)
                 if free is not None:
                     j = int(index_in_scored[i])
                     tree.poses.append(poses[b, k])
