@@ -204,3 +204,29 @@ def test_the_cycle_time_is_the_trajectories_plus_the_waits_for_frames():
     planning = sum(s.log.policy_seconds) + sum(s.log.motion_seconds)
     assert cycle.computation == pytest.approx(planning + 0.5)
     assert cycle.total == pytest.approx(2.6 + planning + 0.5)
+
+
+def test_a_self_filter_takes_the_robot_out_of_the_recorded_frame_and_counts_it():
+    """The filter sees the acquired frame with the pose and joints it was taken at; what it
+    returns is what the log (and so the map and the box fit) keeps."""
+    seen = []
+
+    def marks_first_row(frame, X_WS, q):
+        seen.append((frame.sequence, q.copy()))
+        status = frame.status.copy()
+        status[0] = 254
+        return ToFFrame(frame.distance_mm, status, frame.sigma_mm, frame.sequence,
+                        frame.timestamp_us), 8
+
+    policy = Scripted([])
+    policy.capture_initial = True
+    dut = AcquisitionSequencer(policy, ToX(), period=PERIOD, frame_period=FRAME_PERIOD,
+                               self_filter=marks_first_row)
+    inputs = Inputs()
+    inputs.q_value = np.full(6, 0.1)
+    inputs.frame_value = _frame(3, 0.2)
+    s = dut.step(dut.initial_state(np.zeros(6)), 0.3, inputs)
+    (a,) = s.log.acquisitions
+    assert seen[0][0] == 3 and np.array_equal(seen[0][1], inputs.q_value)
+    assert a.frame.valid.sum() == 56 and not a.frame.valid[0].any()
+    assert a.info == {"robot_zones": 8}

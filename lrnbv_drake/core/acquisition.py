@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses as dc
 import enum
 import time
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
@@ -30,6 +31,10 @@ from lrnbv_drake.core.motion import MotionPlanning, Trajectory
 from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation, ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.core.sensor import ToFFrame
+
+#: (frame, X_WS, q) -> (the frame without the zones that read the robot itself, how many):
+#: core/self_filter.py's `drop_robot_zones` with the robot's geometry at q.
+SelfFilter = Callable[[ToFFrame, np.ndarray, np.ndarray], tuple[ToFFrame, int]]
 
 #: A motion starts from the last command, not from the measured joints, when no joint is
 #: further apart than this, radians (see `motion_start`).
@@ -169,12 +174,15 @@ class AcquisitionSequencer:
     """Steps the acquisition loop of one episode (see the module docstring).
 
     The policy keeps planner memory (cached nodes, visited cells) across steps, as the
-    algorithm requires, so one sequencer runs one episode.
+    algorithm requires, so one sequencer runs one episode. `self_filter`, when given, takes
+    the zones that read the robot itself out of each acquired frame before the map, the
+    clustering and the box fit see it.
     """
 
     def __init__(self, policy: ViewpointPolicy, motion: MotionPlanning, *, period: float,
                  frame_period: float, settle_frames: int = 1, max_poses: int = 50,
-                 max_failed_proposals: int = 5, stop: BoxStop | None = None) -> None:
+                 max_failed_proposals: int = 5, stop: BoxStop | None = None,
+                 self_filter: SelfFilter | None = None) -> None:
         if not period > 0 or not frame_period > 0:
             raise ValueError(f"period and frame_period must be > 0, got {period} and "
                              f"{frame_period}")
@@ -187,6 +195,7 @@ class AcquisitionSequencer:
         self._max_poses = max_poses
         self._max_failed = max_failed_proposals
         self._stop = stop
+        self._self_filter = self_filter
 
     def initial_state(self, q_initial: np.ndarray, history: EpisodeLog | None = None
                       ) -> AcquisitionState:
@@ -226,9 +235,14 @@ class AcquisitionSequencer:
 
     def _record(self, s: AcquisitionState, t: float, frame: ToFFrame,
                 inputs: AcquisitionInputs) -> None:
+        q, X_WS = np.asarray(inputs.q(), float).copy(), inputs.X_WS()
+        if self._self_filter is not None:
+            frame, robot_zones = self._self_filter(frame, X_WS, q)
+            if robot_zones:
+                s.pending_info = {**s.pending_info, "robot_zones": robot_zones}
         s.log.acquisitions.append(Acquisition(
-            index=len(s.log.acquisitions), time=t, q=np.asarray(inputs.q(), float).copy(),
-            X_WS=inputs.X_WS(), frame=frame, info=s.pending_info))
+            index=len(s.log.acquisitions), time=t, q=q, X_WS=X_WS, frame=frame,
+            info=s.pending_info))
         s.log.settle_seconds.append(t - s.t_stop)
         s.pending_info = {}
         s.mode, s.t_ready = Mode.WAIT_MAP, t + 1.5 * self._period

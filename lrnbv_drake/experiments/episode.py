@@ -50,6 +50,7 @@ from lrnbv_drake.station.parts import (
     PLANNERS,
     extraction_params,
     make_policy,
+    make_self_filter,
     make_stop,
     map_system,
     zone_geometry,
@@ -111,7 +112,8 @@ def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = No
     loop = builder.AddNamedSystem("acquisition_loop", AcquisitionLoop(
         policy, motion, scenario.robot.initial_position, period=period,
         frame_period=scenario.sensor.period, settle_frames=scenario.sensor.settle_frames,
-        max_poses=scenario.max_poses, history=history, stop=make_stop(planner, scenario)))
+        max_poses=scenario.max_poses, history=history, stop=make_stop(planner, scenario),
+        self_filter=make_self_filter(scenario, motion)))
     occupancy = builder.AddNamedSystem("map", map_system(scenario, period))
     clustering = builder.AddNamedSystem("clustering",
                                         ObjectClustering(extraction_params(scenario)))

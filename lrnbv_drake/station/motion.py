@@ -110,6 +110,11 @@ class MotionPlanner:
             scenario.robot.acceleration_fraction
         self.home = kinematics.HOME.copy()
         self._path_step = scenario.robot.collision_check_step
+        # The arm's collision geometry, for `near_robot` (the self filter).
+        self._context = self._model.CreateDefaultContext()
+        self._robot_geometries = {g for instance in robot for body in plant.GetBodyIndices(instance)
+                                  for g in plant.GetCollisionGeometriesForBody(
+                                      plant.get_body(body))}
 
     def travel_time(self, q: np.ndarray, Q: np.ndarray) -> np.ndarray:
         """Seconds the direct synchronised trapezoid from joints q takes to each of the
@@ -130,6 +135,17 @@ class MotionPlanner:
     def collision_free(self, q: np.ndarray) -> bool:
         """Whether configuration q keeps the robot clear of the cell and of itself."""
         return bool(self._checker.CheckConfigCollisionFree(np.asarray(q, float)))
+
+    def near_robot(self, q: np.ndarray, points: np.ndarray, padding: float) -> np.ndarray:
+        """(n,) bool: which world points (n, 3) lie within `padding` of the robot's collision
+        geometry (or inside it) at joints q: readings of the arm itself (core/self_filter.py)."""
+        plant, scene_graph = self._model.plant(), self._model.scene_graph()
+        plant.SetPositions(plant.GetMyMutableContextFromRoot(self._context), np.asarray(q, float))
+        query = scene_graph.get_query_output_port().Eval(
+            scene_graph.GetMyContextFromRoot(self._context))
+        return np.array([any(d.id_G in self._robot_geometries
+                             for d in query.ComputeSignedDistanceToPoint(p, padding))
+                         for p in np.asarray(points, float).reshape(-1, 3)], bool)
 
     def ik_batch(self, X_WS: np.ndarray, q_current: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.acquisition import SelfFilter
 from lrnbv_drake.core.box_fit import BoxEstimator, BoxFitParams
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.height_map_fit import ShapeEstimator
@@ -21,7 +22,8 @@ from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop, BoxStopParams
 from lrnbv_drake.core.robot_safety import SafetyLimits
-from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams, ZoneGeometry
+from lrnbv_drake.core.self_filter import drop_robot_zones
+from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams, ToFFrame, ZoneGeometry
 from lrnbv_drake.core.tof_device import (
     PROFILES,
     DeviceBehaviour,
@@ -183,6 +185,20 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
             table_height=scenario.cell.table_height, seed=scenario.seed, variant=planner,
             travel_time=motion.travel_time)
     raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
+
+
+def make_self_filter(scenario: Scenario, motion: MotionPlanner) -> SelfFilter | None:
+    """The acquisition's self filter (`robot.self_filter_padding`; None at 0): a reading
+    within the padding of the arm's collision geometry at the captured joints is the arm."""
+    padding = scenario.robot.self_filter_padding
+    if padding <= 0:
+        return None
+    geometry = zone_geometry(scenario)
+
+    def self_filter(frame: ToFFrame, X_WS: np.ndarray, q: np.ndarray) -> tuple[ToFFrame, int]:
+        return drop_robot_zones(frame, geometry, X_WS,
+                                lambda points: motion.near_robot(q, points, padding))
+    return self_filter
 
 
 def make_stop(planner: str, scenario: Scenario) -> BoxStop | None:

@@ -40,6 +40,10 @@ class RobotConfig:
     collision_check_step: float = 0.05
     # Clearance kept between the robot (with the sensor mount) and the table or object, metres.
     collision_padding: float = 0.01
+    # A reading within this of the robot's own collision geometry at capture is the arm seen
+    # by its sensor, not the scene: its zone is dropped (status 254, core/self_filter.py),
+    # metres; 0 keeps every reading.
+    self_filter_padding: float = 0.03
     # Hardware only: the controller's IP address.
     robot_ip: str = ""
 

@@ -145,6 +145,7 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("planner.cache_threshold", _FINITE),
     ("planner.cached_sample_spread", _at_least(0)),
     ("planner.travel_discount", _at_least(0)),
+    ("robot.self_filter_padding", _at_least(0)),
     ("planner.stop.rule", _one_of("paper", "box")),
     ("planner.stop.tolerance", _above(0)),
     ("planner.stop.stable_poses", _at_least(1)),

@@ -19,6 +19,7 @@ from lrnbv_drake.core.acquisition import (
     AcquisitionState,
     EpisodeLog,
     Mode,
+    SelfFilter,
 )
 from lrnbv_drake.core.motion import MotionPlanning
 from lrnbv_drake.core.planning.policy import Observation, ViewpointPolicy
@@ -84,12 +85,13 @@ class AcquisitionLoop(LeafSystem):
     def __init__(self, policy: ViewpointPolicy, motion: MotionPlanning, q_initial: np.ndarray,
                  *, period: float, frame_period: float, settle_frames: int = 1,
                  max_poses: int = 50, max_failed_proposals: int = 5,
-                 history: EpisodeLog | None = None, stop: BoxStop | None = None):
+                 history: EpisodeLog | None = None, stop: BoxStop | None = None,
+                 self_filter: SelfFilter | None = None):
         super().__init__()
         self._sequencer = AcquisitionSequencer(
             policy, motion, period=period, frame_period=frame_period,
             settle_frames=settle_frames, max_poses=max_poses,
-            max_failed_proposals=max_failed_proposals, stop=stop)
+            max_failed_proposals=max_failed_proposals, stop=stop, self_filter=self_filter)
         self.DeclareVectorInputPort("position_measured", 6)
         self.DeclareAbstractInputPort("tof_frame", AbstractValue.Make(ToFFrame.empty()))
         self.DeclareAbstractInputPort("X_WS", AbstractValue.Make(RigidTransform()))
