@@ -213,10 +213,10 @@ def test_a_self_filter_takes_the_robot_out_of_the_recorded_frame_and_counts_it()
 
     def marks_first_row(frame, X_WS, q):
         seen.append((frame.sequence, q.copy()))
-        status = frame.status.copy()
-        status[0] = 254
-        return ToFFrame(frame.distance_mm, status, frame.sigma_mm, frame.sequence,
-                        frame.timestamp_us), 8
+        hit = np.zeros((8, 8), bool)
+        hit[0] = True
+        return ToFFrame(frame.distance_mm, np.where(hit, 254, frame.status), frame.sigma_mm,
+                        frame.sequence, frame.timestamp_us), hit
 
     policy = Scripted([])
     policy.capture_initial = True
@@ -229,4 +229,5 @@ def test_a_self_filter_takes_the_robot_out_of_the_recorded_frame_and_counts_it()
     (a,) = s.log.acquisitions
     assert seen[0][0] == 3 and np.array_equal(seen[0][1], inputs.q_value)
     assert a.frame.valid.sum() == 56 and not a.frame.valid[0].any()
-    assert a.info == {"robot_zones": 8}
+    # What restores the raw frame: the dropped zones' raw indices and original statuses.
+    assert a.info == {"robot_zones": {"index": list(range(8)), "status": [5] * 8}}

@@ -17,6 +17,12 @@ def test_look_at_points_the_optical_axis_at_the_target():
     assert np.linalg.det(X[:3, :3]) == pytest.approx(1.0)
     X = look_at([0.0, 0.0, 1.0], [1.0, 0.0, 1.0])
     np.testing.assert_allclose(X[:3, 1], [0, 0, -1], atol=1e-12)  # image y points down
+    # Along `up` itself, even when up is y: still a rotation, still aimed at the target.
+    for up in ([0.0, 0.0, 1.0], [0.0, 1.0, 0.0]):
+        X = look_at([0.0, 0.0, 0.0], up, up=up)
+        np.testing.assert_allclose(X[:3, 2], up, atol=1e-12)
+        np.testing.assert_allclose(X[:3, :3].T @ X[:3, :3], np.eye(3), atol=1e-12)
+        assert np.linalg.det(X[:3, :3]) == pytest.approx(1.0)
 
 
 def test_poses_lie_on_the_ellipse_evenly_spaced_and_look_at_the_target():

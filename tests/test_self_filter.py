@@ -19,16 +19,17 @@ def test_zones_whose_points_the_robot_holds_are_marked_and_the_rest_kept():
     """Straight down from 1 m: zones reading 400 mm end 0.6 m up (the 'arm'), zones reading
     1000 mm on the table. Only the former are marked, in the board's raw order (flips)."""
     distance = np.full((8, 8), 1000)
-    distance[1, 2] = distance[6, 5] = 400
+    distance[0, 1] = distance[2, 5] = 400  # no symmetry maps this pair onto itself
     distance[3, 3] = 0  # invalid: never asked about, never marked
     X_WS = look_at(np.array([0.0, 0.0, 1.0]), np.zeros(3))
     for geometry in (ZoneGeometry(), ZoneGeometry(flip_x=True, transpose=True)):
         asked = []
-        dut, n = drop_robot_zones(_frame(distance), geometry, X_WS,
-                                  lambda points, asked=asked: asked.append(len(points))
-                                  or points[:, 2] > 0.5)
-        assert n == 2 and asked == [63]
+        dut, hit = drop_robot_zones(_frame(distance), geometry, X_WS,
+                                    lambda points, asked=asked: asked.append(len(points))
+                                    or points[:, 2] > 0.5)
         expected = distance == 400
+        assert asked == [63]
+        np.testing.assert_array_equal(hit, expected)
         np.testing.assert_array_equal(dut.status == STATUS_ROBOT, expected)
         np.testing.assert_array_equal(dut.distance_mm, distance)  # the reading is kept
         assert not dut.valid[expected].any() and dut.valid.sum() == 61
@@ -37,8 +38,8 @@ def test_zones_whose_points_the_robot_holds_are_marked_and_the_rest_kept():
 def test_a_frame_with_no_robot_in_it_is_returned_as_it_is():
     frame = _frame(np.full((8, 8), 500))
     X_WS = look_at(np.array([0.0, 0.0, 1.0]), np.zeros(3))
-    dut, n = drop_robot_zones(frame, ZoneGeometry(), X_WS, lambda p: np.zeros(len(p), bool))
-    assert dut is frame and n == 0
+    dut, hit = drop_robot_zones(frame, ZoneGeometry(), X_WS, lambda p: np.zeros(len(p), bool))
+    assert dut is frame and not hit.any()
     assert not robot_zones(ToFFrame.empty(), ZoneGeometry(), X_WS, lambda p: 1 / 0).any()
 
 
@@ -47,7 +48,7 @@ def test_points_on_the_arm_are_near_the_robot_and_points_on_the_table_are_not():
     object's place: the upper arm's middle and the flange (placed by the analytic FK, the
     upper arm 0.138 m along joint 2's axis from the DH line, as UR's drawings and the URDF's
     collision origin put it) are on the robot; 5 cm above the table under the arm, a point
-    30 cm beside it and the object's centre are not."""
+    30 cm beside it, the object's centre and a reading 2 cm in front of the sensor are not."""
     motion = MotionPlanner(Scenario())
     q = np.array([-0.34, 0.01, -0.64, -0.01, -1.49, -3.08])
     X_W_base = motion.X_W_base
@@ -60,6 +61,9 @@ def test_points_on_the_arm_are_near_the_robot_and_points_on_the_table_are_not():
     flange = (X_W_base @ kinematics.forward_kinematics(q))[:3, 3]
     below = upper_arm * [1, 1, 0] + [0, 0, 0.05]
     beside = upper_arm + np.array([0, 0.3, 0.0])
-    points = np.array([upper_arm, flange, below, beside, [0.5, 0.0, 0.03]])
+    # 2 cm in front of the sensor: the closest valid reading, on the sensor's mount's face,
+    # which is not the arm.
+    in_front = (motion.sensor_pose(q) @ [0.0, 0.0, 0.02, 1.0])[:3]
+    points = np.array([upper_arm, flange, below, beside, [0.5, 0.0, 0.03], in_front])
     np.testing.assert_array_equal(motion.near_robot(q, points, 0.03),
-                                  [True, True, False, False, False])
+                                  [True, True, False, False, False, False])

@@ -16,7 +16,8 @@ class Scripted:
 
     def __init__(self, dims_mm, widths_mm=None):
         self.dims = [None if d is None else np.array(d) / 1000 for d in dims_mm]
-        self.widths = [np.array(w) / 1000 for w in widths_mm or [(1, 1, 1)] * len(dims_mm)]
+        self.widths = [None if w is None else np.array(w) / 1000
+                       for w in widths_mm or [(1, 1, 1)] * len(dims_mm)]
         self.added = 0
         self.starts = []
 
@@ -68,6 +69,8 @@ def test_a_still_box_with_a_side_the_readings_do_not_bound_does_not_stop():
     assert _first_stop(still, BoxStopParams(0.005, 2, 4), widths) == 7
     assert _first_stop(still, BoxStopParams(0.005, 2, 4, interval_width=0.2), widths) == 4
     assert _first_stop(still, BoxStopParams(0.005, 2, 4, interval_width=0.01), widths) is None
+    # A refit that found no reading near the box hands back an older fit without a width.
+    assert _first_stop(still, BoxStopParams(0.005, 2, 4), [None] * 8) is None
 
 
 def test_each_acquisition_is_added_once_and_the_cell_box_starts_the_fit():

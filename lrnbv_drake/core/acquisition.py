@@ -30,11 +30,12 @@ import numpy as np
 from lrnbv_drake.core.motion import MotionPlanning, Trajectory
 from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation, ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop
+from lrnbv_drake.core.self_filter import dropped_zones_info
 from lrnbv_drake.core.sensor import ToFFrame
 
-#: (frame, X_WS, q) -> (the frame without the zones that read the robot itself, how many):
-#: core/self_filter.py's `drop_robot_zones` with the robot's geometry at q.
-SelfFilter = Callable[[ToFFrame, np.ndarray, np.ndarray], tuple[ToFFrame, int]]
+#: (frame, X_WS, q) -> (the frame without the zones that read the robot itself, their
+#: (res, res) mask in raw order): core/self_filter.py's `drop_robot_zones` at joints q.
+SelfFilter = Callable[[ToFFrame, np.ndarray, np.ndarray], tuple[ToFFrame, np.ndarray]]
 
 #: A motion starts from the last command, not from the measured joints, when no joint is
 #: further apart than this, radians (see `motion_start`).
@@ -237,9 +238,11 @@ class AcquisitionSequencer:
                 inputs: AcquisitionInputs) -> None:
         q, X_WS = np.asarray(inputs.q(), float).copy(), inputs.X_WS()
         if self._self_filter is not None:
-            frame, robot_zones = self._self_filter(frame, X_WS, q)
-            if robot_zones:
-                s.pending_info = {**s.pending_info, "robot_zones": robot_zones}
+            filtered, hit = self._self_filter(frame, X_WS, q)
+            if hit.any():
+                s.pending_info = {**s.pending_info,
+                                  "robot_zones": dropped_zones_info(frame, hit)}
+            frame = filtered
         s.log.acquisitions.append(Acquisition(
             index=len(s.log.acquisitions), time=t, q=q, X_WS=X_WS, frame=frame,
             info=s.pending_info))

@@ -33,8 +33,9 @@ def _look_at_kernel(eyes, targets, up, X):
         z0, z1, z2 = z0 / n, z1 / n, z2 / n
         x0, x1, x2 = z1 * u2 - z2 * u1, z2 * u0 - z0 * u2, z0 * u1 - z1 * u0
         if _norm(x0, x1, x2) < 1e-6:
-            # Looking along `up`: any x perpendicular (z x [0, 1, 0]).
-            x0, x1, x2 = -z2, 0.0, z0
+            # Looking along `up`: any x perpendicular, z x [0, 1, 0] (z x [1, 0, 0] if z is
+            # along y too).
+            x0, x1, x2 = (-z2, 0.0, z0) if abs(z1) < 0.9 else (0.0, z2, -z1)
         n = _norm(x0, x1, x2)
         x0, x1, x2 = x0 / n, x1 / n, x2 / n
         y0, y1, y2 = z1 * x2 - z2 * x1, z2 * x0 - z0 * x2, z0 * x1 - z1 * x0

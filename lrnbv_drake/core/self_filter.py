@@ -6,8 +6,9 @@ arm passed 5-14 cm above the object, 30 zones read it, the map's object cluster 
 19.5 cm tall with them, and the box fitted from that cluster came out 0.5 mm wide and 16 cm
 tall. The fix is the one robots use for depth cameras: a reading whose point lies on the
 robot's own geometry at the capture configuration is the robot, not the scene. Its status
-becomes `STATUS_ROBOT` (the distance is kept), so the map, the clustering and the box fit,
-which all gate on the status, leave it out.
+becomes `STATUS_ROBOT` (the distance is kept, the original status goes to the acquisition's
+info: `dropped_zones_info`), so the map, the clustering and the box fit, which all gate on the
+status, leave it out. The sensor's mount is not in that geometry: its face is the sensor's.
 
 Which points lie on the robot is the caller's (the station asks Drake's SceneGraph for the
 UR5e's collision geometry at the captured joints, `MotionPlanner.near_robot`): here is only
@@ -42,9 +43,16 @@ def robot_zones(frame: ToFFrame, geometry: ZoneGeometry, X_WS: np.ndarray,
 
 
 def drop_robot_zones(frame: ToFFrame, geometry: ZoneGeometry, X_WS: np.ndarray,
-                     near_robot: Callable[[np.ndarray], np.ndarray]) -> tuple[ToFFrame, int]:
-    """The frame with the zones `robot_zones` finds marked `STATUS_ROBOT`, and their count."""
+                     near_robot: Callable[[np.ndarray], np.ndarray]
+                     ) -> tuple[ToFFrame, np.ndarray]:
+    """The frame with the zones `robot_zones` finds marked `STATUS_ROBOT`, and that mask."""
     hit = robot_zones(frame, geometry, X_WS, near_robot)
     if not hit.any():
-        return frame, 0
-    return dc.replace(frame, status=np.where(hit, STATUS_ROBOT, frame.status)), int(hit.sum())
+        return frame, hit
+    return dc.replace(frame, status=np.where(hit, STATUS_ROBOT, frame.status)), hit
+
+
+def dropped_zones_info(frame: ToFFrame, hit: np.ndarray) -> dict[str, list[int]]:
+    """What an acquisition's `info` keeps of the dropped zones, so the raw frame can be
+    restored: their flat indices in the raw (res, res) order and their original statuses."""
+    return {"index": np.flatnonzero(hit).tolist(), "status": frame.status[hit].tolist()}

@@ -110,11 +110,13 @@ class MotionPlanner:
             scenario.robot.acceleration_fraction
         self.home = kinematics.HOME.copy()
         self._path_step = scenario.robot.collision_check_step
-        # The arm's collision geometry, for `near_robot` (the self filter).
+        # The arm's collision geometry, for `near_robot` (the self filter). Not the sensor's
+        # mount: its front face is the sensor's, so every reading under the padding would be
+        # "robot".
         self._context = self._model.CreateDefaultContext()
-        self._robot_geometries = {g for instance in robot for body in plant.GetBodyIndices(instance)
-                                  for g in plant.GetCollisionGeometriesForBody(
-                                      plant.get_body(body))}
+        arm = plant.GetModelInstanceByName("ur5e")
+        self._arm_geometries = {g for body in plant.GetBodyIndices(arm)
+                                for g in plant.GetCollisionGeometriesForBody(plant.get_body(body))}
 
     def travel_time(self, q: np.ndarray, Q: np.ndarray) -> np.ndarray:
         """Seconds the direct synchronised trapezoid from joints q takes to each of the
@@ -137,13 +139,14 @@ class MotionPlanner:
         return bool(self._checker.CheckConfigCollisionFree(np.asarray(q, float)))
 
     def near_robot(self, q: np.ndarray, points: np.ndarray, padding: float) -> np.ndarray:
-        """(n,) bool: which world points (n, 3) lie within `padding` of the robot's collision
-        geometry (or inside it) at joints q: readings of the arm itself (core/self_filter.py)."""
+        """(n,) bool: which world points (n, 3) lie within `padding` of the arm's collision
+        geometry (or inside it) at joints q: readings of the arm itself (core/self_filter.py).
+        Not safe to call from two threads at once (one context)."""
         plant, scene_graph = self._model.plant(), self._model.scene_graph()
         plant.SetPositions(plant.GetMyMutableContextFromRoot(self._context), np.asarray(q, float))
         query = scene_graph.get_query_output_port().Eval(
             scene_graph.GetMyContextFromRoot(self._context))
-        return np.array([any(d.id_G in self._robot_geometries
+        return np.array([any(d.id_G in self._arm_geometries
                              for d in query.ComputeSignedDistanceToPoint(p, padding))
                          for p in np.asarray(points, float).reshape(-1, 3)], bool)
 

@@ -195,7 +195,8 @@ def make_self_filter(scenario: Scenario, motion: MotionPlanner) -> SelfFilter | 
         return None
     geometry = zone_geometry(scenario)
 
-    def self_filter(frame: ToFFrame, X_WS: np.ndarray, q: np.ndarray) -> tuple[ToFFrame, int]:
+    def self_filter(frame: ToFFrame, X_WS: np.ndarray, q: np.ndarray
+                    ) -> tuple[ToFFrame, np.ndarray]:
         return drop_robot_zones(frame, geometry, X_WS,
                                 lambda points: motion.near_robot(q, points, padding))
     return self_filter

@@ -80,7 +80,9 @@ class BoxStop:
         if not np.all(spread < p.tolerance):
             return None
         fit = self._estimator.estimate(cell_box)  # the same box, now with its interval
-        if fit is None or not np.all(fit.readings_width <= p.interval_width):
+        # No width: the refit found no reading near the box and handed back an older fit.
+        if fit is None or fit.readings_width is None or not np.all(
+                fit.readings_width <= p.interval_width):
             return None
         return (f"the box held still: every dimension moved less than "
                 f"{1000 * p.tolerance:.0f} mm over the last {p.stable_poses} poses and the "
