@@ -159,3 +159,24 @@ def test_travel_time_is_the_direct_trajectorys_duration(planner):
                                                planner.max_acceleration).end_time()
                         for qi in Q[1:]]
     np.testing.assert_allclose(planner.travel_time(q, Q), expected, rtol=1e-12)
+
+
+def test_between_two_low_views_across_the_box_the_path_goes_over_it_not_through_home(planner):
+    """From a view low on the box's +y side to one low on its -y side (two poses of `make
+    run`): the straight joint path sweeps the sensor through the box, so the plan detours;
+    over the box it is collision-free, stays in the workspace, reaches the view and takes
+    less than half the time the detour through home does."""
+    q_start = np.array([0.3501, -0.9196, 1.2756, -1.0414, 3.9415, -3.6595])
+    target = look_at([0.4539, -0.3017, 0.1332], [0.5, 0.0, 0.06])
+    plan = planner.plan(q_start, target)
+    assert plan.ok, plan.reason
+    traj = plan.trajectory
+    np.testing.assert_allclose(planner.sensor_pose(plan.q_target)[:3, 3],
+                               [0.4539, -0.3017, 0.1332], atol=1e-9)
+    assert all(planner.collision_free(traj.value(t).ravel())
+               for t in np.linspace(traj.start_time(), traj.end_time(), 200))
+    assert _farthest_outside(planner, traj) <= 0.0
+    via_home = trapezoidal_trajectory(np.array([q_start, planner.home, plan.q_target]),
+                                      planner.max_velocity, planner.max_acceleration)
+    assert traj.end_time() - traj.start_time() < 0.5 * via_home.end_time()
+    assert not planner._checker.CheckEdgeCollisionFree(q_start, plan.q_target)

@@ -23,6 +23,7 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.motion import MotionFailure, MotionPlan
+from lrnbv_drake.core.poses import look_at
 from lrnbv_drake.station.cell_models import add_cell_models, fixed_pose
 from lrnbv_drake.station.resources import make_robot_diagram_builder
 from lrnbv_drake.station.scenario import Scenario
@@ -110,6 +111,8 @@ class MotionPlanner:
             scenario.robot.acceleration_fraction
         self.home = kinematics.HOME.copy()
         self._path_step = scenario.robot.collision_check_step
+        # Height of the sensor over the table on a detour over the object (`_detours`).
+        self._over_height = scenario.cell.table_height + 0.45
         # The arm's collision geometry, for `near_robot` (the self filter). Not the sensor's
         # mount: its front face is the sensor's, so every reading under the padding would be
         # "robot".
@@ -191,7 +194,7 @@ class MotionPlanner:
                               f"the robot itself")
         leaves_workspace = 0
         for q in free:
-            for waypoints in ([q_current, q], [q_current, self.home, q]):
+            for waypoints in ([q_current, q], *self._detours(q_current, q)):
                 if not all(self._checker.CheckEdgeCollisionFree(a, b)
                            for a, b in itertools.pairwise(waypoints)):
                     continue
@@ -209,6 +212,19 @@ class MotionPlanner:
         return MotionPlan(MotionFailure.PATH_IN_COLLISION,
                           f"{len(free)} collision-free IK solutions, but every joint-space "
                           f"path to them (direct or through home) collides")
+
+    def _detours(self, q_current: np.ndarray, q: np.ndarray) -> list[list[np.ndarray]]:
+        """Paths around whatever lies between q_current and q, shortest first: over it, the
+        sensor looking down 0.45 m above the table midway between the two views, then
+        through home. Between two low views on either side of the object the straight joint
+        path sweeps the sensor through the object: through home such moves took 9.4-10.0 s,
+        over it 3.4-3.8 s (three of the ten moves of `make run`)."""
+        a, b = self.sensor_pose(q_current)[:3, 3], self.sensor_pose(q)[:3, 3]
+        middle = (a + b) / 2
+        over = look_at(np.array([middle[0], middle[1], self._over_height]),
+                       np.array([middle[0], middle[1], self._over_height - 1.0]))
+        detours = [[q_current, q_over, q] for q_over in self.ik(over, q_current)[:1]]
+        return [*detours, [q_current, self.home, q]]
 
     def path_in_workspace(self, waypoints: np.ndarray) -> bool:
         """Whether the sensor stays inside the workspace along the straight joint-space
