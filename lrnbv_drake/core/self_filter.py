@@ -22,6 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from lrnbv_drake.core.mapping.scan import frame_scan
 from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
 
 #: Status this package writes for a zone whose reading is the robot itself. Not one of ST's
@@ -33,13 +34,12 @@ def robot_zones(frame: ToFFrame, geometry: ZoneGeometry, X_WS: np.ndarray,
                 near_robot: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
     """(res, res) bool in raw zone order: the valid zones whose zone-centre point, in world,
     `near_robot` (n, 3) -> (n,) bool says lies on the robot."""
-    points_S, valid = geometry.points(frame)
-    hit = np.zeros(len(valid), bool)
-    if valid.any():
-        X_WS = np.asarray(X_WS, float)
-        points_W = points_S[valid] @ X_WS[:3, :3].T + X_WS[:3, 3]
+    _, points_W = frame_scan(frame, geometry, X_WS)  # the valid zones', row-major
+    valid = geometry.to_row_major(frame.valid)
+    hit = np.zeros(valid.shape, bool)
+    if len(points_W):
         hit[valid] = np.asarray(near_robot(points_W), bool)
-    return geometry.to_raw(hit.reshape(geometry.resolution, geometry.resolution))
+    return geometry.to_raw(hit)
 
 
 def drop_robot_zones(frame: ToFFrame, geometry: ZoneGeometry, X_WS: np.ndarray,

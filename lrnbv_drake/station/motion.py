@@ -192,9 +192,10 @@ class MotionPlanner:
             return MotionPlan(MotionFailure.TARGET_IN_COLLISION,
                               f"all {len(candidates)} IK solutions collide with the cell or "
                               f"the robot itself")
+        via = self._detours(q_current, p)
         leaves_workspace = 0
         for q in free:
-            for waypoints in ([q_current, q], *self._detours(q_current, q)):
+            for waypoints in ([q_current, q], *([q_current, v, q] for v in via)):
                 if not all(self._checker.CheckEdgeCollisionFree(a, b)
                            for a, b in itertools.pairwise(waypoints)):
                     continue
@@ -213,18 +214,17 @@ class MotionPlanner:
                           f"{len(free)} collision-free IK solutions, but every joint-space "
                           f"path to them (direct or through home) collides")
 
-    def _detours(self, q_current: np.ndarray, q: np.ndarray) -> list[list[np.ndarray]]:
-        """Paths around whatever lies between q_current and q, shortest first: over it, the
-        sensor looking down 0.45 m above the table midway between the two views, then
-        through home. Between two low views on either side of the object the straight joint
-        path sweeps the sensor through the object: through home such moves took 9.4-10.0 s,
-        over it 3.4-3.8 s (three of the ten moves of `make run`)."""
-        a, b = self.sensor_pose(q_current)[:3, 3], self.sensor_pose(q)[:3, 3]
-        middle = (a + b) / 2
+    def _detours(self, q_current: np.ndarray, target: np.ndarray) -> list[np.ndarray]:
+        """Configurations to pass through around whatever lies between the sensor at
+        q_current and `target` (a position), shortest first: over it, the sensor looking down
+        0.45 m above the table midway between the two, then home. Between two low views on
+        either side of the object the straight joint path sweeps the sensor through the
+        object: through home such moves took 9.4-10.0 s, over it 3.4-3.8 s (three of the ten
+        moves of `make run`)."""
+        middle = (self.sensor_pose(q_current)[:3, 3] + target) / 2
         over = look_at(np.array([middle[0], middle[1], self._over_height]),
                        np.array([middle[0], middle[1], self._over_height - 1.0]))
-        detours = [[q_current, q_over, q] for q_over in self.ik(over, q_current)[:1]]
-        return [*detours, [q_current, self.home, q]]
+        return [*self.ik(over, q_current)[:1], self.home]
 
     def path_in_workspace(self, waypoints: np.ndarray) -> bool:
         """Whether the sensor stays inside the workspace along the straight joint-space
