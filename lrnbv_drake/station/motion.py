@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+import math
 
 import numpy as np
 from pydrake.planning import SceneGraphCollisionChecker
@@ -74,6 +75,14 @@ def trapezoidal_trajectory(waypoints: np.ndarray, max_velocity: np.ndarray,
                                             np.column_stack(v_knots))
 
 
+def _roll(angle: float) -> np.ndarray:
+    """X_S_S' (4x4): a rotation by `angle` about the sensor's optical axis (z)."""
+    c, s = math.cos(angle), math.sin(angle)
+    X = np.eye(4)
+    X[:2, :2] = [[c, -s], [s, c]]
+    return X
+
+
 class MotionPlanner:
     """Plans collision-free, limited motions of the sensor for one scenario's cell."""
 
@@ -110,6 +119,10 @@ class MotionPlanner:
         self.max_acceleration = kinematics.ACCELERATION_LIMIT * \
             scenario.robot.acceleration_fraction
         self.home = kinematics.HOME.copy()
+        # The rolls about the optical axis a view may take (`robot.sensor_roll_step_deg`).
+        step = scenario.robot.sensor_roll_step_deg
+        self._rolls = np.stack([_roll(math.radians(a)) for a in
+                                (np.arange(0.0, 360.0, step) if step > 0 else [0.0])])
         self._path_step = scenario.robot.collision_check_step
         # Height of the sensor over the table on a detour over the object (`_detours`).
         self._over_height = scenario.cell.table_height + 0.45
@@ -156,12 +169,14 @@ class MotionPlanner:
     def ik_batch(self, X_WS: np.ndarray, q_current: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
         """The IK solutions of many sensor poses (N, 4, 4) in one call: (Q, n), pose i's n[i]
-        solutions (as `ik` gives them) in Q[i, :n[i]], Q (N, 8, 6). Arrays, not a list of N
-        arrays: the planner reads the solutions of only the few views it tries."""
-        X_base_tool0 = self._X_base_W @ np.asarray(X_WS, float).reshape(-1, 4, 4) @ \
-            self._X_S_tool0
-        Q, ok = kinematics.inverse_kinematics(X_base_tool0)
-        Q = kinematics.nearest_equivalents(Q, q_current)
+        solutions (as `ik` gives them) in Q[i, :n[i]], Q (N, 8 r, 6) for the r rolls the
+        sensor may take about its optical axis (`robot.sensor_roll_step_deg`). Arrays, not a
+        list of N arrays: the planner reads the solutions of only the few views it tries."""
+        X_WS = np.asarray(X_WS, float).reshape(-1, 4, 4)
+        X_base_tool0 = self._X_base_W @ (X_WS[:, None] @ self._rolls) @ self._X_S_tool0
+        Q, ok = kinematics.inverse_kinematics(X_base_tool0.reshape(-1, 4, 4))
+        Q = kinematics.nearest_equivalents(Q.reshape(len(X_WS), -1, 6), q_current)
+        ok = ok.reshape(len(X_WS), -1)
         cost = np.where(ok, np.max(np.abs(Q - q_current) / self.max_velocity, axis=-1), np.inf)
         order = np.argsort(cost, axis=1, kind="stable")
         return Q[np.arange(len(Q))[:, None], order], ok.sum(axis=1)

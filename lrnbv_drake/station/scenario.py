@@ -44,6 +44,10 @@ class RobotConfig:
     # by its sensor, not the scene: its zone is dropped (status 254, core/self_filter.py),
     # metres; 0 keeps every reading.
     self_filter_padding: float = 0.03
+    # The sensor may be rolled about its optical axis by a multiple of this, in degrees, when
+    # that moves the arm less: its 8x8 zones are square, so a view rolled by 90 degrees covers
+    # the same zones in another order (0: every view exactly as planned).
+    sensor_roll_step_deg: float = 0.0
     # Hardware only: the controller's IP address.
     robot_ip: str = ""
 
