@@ -373,19 +373,27 @@ def _data_cost(o, d, table_t, measured, sigma, m, edges_x, edges_y, heights, hma
     return cost
 
 
-def _landing_heights(o: np.ndarray, d: np.ndarray, reach: np.ndarray, edges_x: np.ndarray,
-                     edges_y: np.ndarray, hmax: float) -> tuple[np.ndarray, np.ndarray]:
-    """Each grid cell's candidate heights: where the sub-rays, taken to their zone's reading,
-    land in it (5 mm steps), as CSR (start, values)."""
+def _landing_points(o: np.ndarray, d: np.ndarray, reach: np.ndarray, edges_x: np.ndarray,
+                    edges_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the sub-rays, taken to their zone's reading, land: each one's cell (flat index,
+    -1 outside the grid's footprint) and height."""
     p = o + reach[:, None] * d
     ix = np.searchsorted(edges_x, p[:, 0], side="right") - 1
     iy = np.searchsorted(edges_y, p[:, 1], side="right") - 1
     nx, ny = len(edges_x) - 1, len(edges_y) - 1
-    ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny) & (p[:, 2] > 0) & (p[:, 2] <= hmax)
-    key = ix[ok] * ny + iy[ok]
-    z = np.round(p[ok, 2] / 0.005) * 0.005
-    pairs = np.unique(np.stack([key, z], axis=1), axis=0)
-    start = np.searchsorted(pairs[:, 0], np.arange(nx * ny + 1))
+    inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    return np.where(inside, ix * ny + iy, -1), p[:, 2]
+
+
+def _landing_heights(o: np.ndarray, d: np.ndarray, reach: np.ndarray, edges_x: np.ndarray,
+                     edges_y: np.ndarray, hmax: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each grid cell's candidate heights: where the sub-rays, taken to their zone's reading,
+    land in it (5 mm steps), as CSR (start, values)."""
+    cell, z = _landing_points(o, d, reach, edges_x, edges_y)
+    ok = (cell >= 0) & (z > 0) & (z <= hmax)
+    pairs = np.unique(np.stack([cell[ok], np.round(z[ok] / 0.005) * 0.005], axis=1), axis=0)
+    n_cells = (len(edges_x) - 1) * (len(edges_y) - 1)
+    start = np.searchsorted(pairs[:, 0], np.arange(n_cells + 1))
     return start.astype(np.int64), pairs[:, 1].copy()
 
 
@@ -576,19 +584,15 @@ def _back_projection(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarr
     """(nx, ny) columns where the readings put surfaces: each cell's median height of the
     sub-rays' points at their zone's reading (0 where none lands, or lower than
     `min_height`). It smears a zone over its whole footprint, so it is a start, not a fit."""
-    p = readings.o + readings.reach[:, None] * readings.d
-    nx, ny = len(edges_x) - 1, len(edges_y) - 1
-    ix = np.searchsorted(edges_x, p[:, 0], side="right") - 1
-    iy = np.searchsorted(edges_y, p[:, 1], side="right") - 1
-    ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny) & np.isfinite(p[:, 2])
-    labels = ix[ok] * ny + iy[ok] + 1
-    heights = np.zeros(nx * ny)
-    present = np.unique(labels)
+    cell, z = _landing_points(readings.o, readings.d, readings.reach, edges_x, edges_y)
+    ok = (cell >= 0) & np.isfinite(z)
+    heights = np.zeros((len(edges_x) - 1) * (len(edges_y) - 1))
+    present = np.unique(cell[ok])
     if len(present):
-        heights[present - 1] = scipy.ndimage.median(
-            np.clip(p[ok, 2], 0.0, readings.hmax), labels, present)
+        heights[present] = scipy.ndimage.median(np.clip(z[ok], 0.0, readings.hmax),
+                                                cell[ok] + 1, present + 1)
     heights[heights < min_height] = 0.0
-    return heights.reshape(nx, ny)
+    return heights.reshape(len(edges_x) - 1, len(edges_y) - 1)
 
 
 def _outside(grid: np.ndarray, expected: np.ndarray, min_height: float) -> bool:
