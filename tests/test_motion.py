@@ -180,3 +180,26 @@ def test_between_two_low_views_across_the_box_the_path_goes_over_it_not_through_
                                       planner.max_velocity, planner.max_acceleration)
     assert traj.end_time() - traj.start_time() < 0.5 * via_home.end_time()
     assert not planner._checker.CheckEdgeCollisionFree(q_start, plan.q_target)
+
+
+@pytest.mark.parametrize(("step_deg", "turn", "largest_move"), [
+    (0.0, 1.5, 1.5), (90.0, 1.5, 1.5 - np.pi / 2), (180.0, 1.5, 1.5),
+    (90.0, 3.0, np.pi - 3.0), (180.0, 3.0, np.pi - 3.0)])
+def test_a_view_turned_about_its_axis_is_reached_by_the_nearest_allowed_roll(step_deg, turn,
+                                                                           largest_move):
+    """The sensor sits on the wrist-3 axis, so a view that differs from the current one by
+    a turn about the optical axis is wrist 3 alone: `turn` rad as planned, or the turn less the
+    nearest multiple of the allowed roll (90 degrees takes 1.5 rad to 0.071 and 3.0 to 0.142;
+    180 takes 3.0 to 0.142 and leaves 1.5; without rolls a 3.0 rad turn is nearer by the
+    other wrist branch, 2.6 rad). The nearest solution sees from the same point along the
+    same axis."""
+    scenario = Scenario()
+    scenario.robot.sensor_roll_step_deg = step_deg
+    dut = MotionPlanner(scenario)
+    q = kinematics.HOME.copy()
+    target = dut.sensor_pose(q + np.array([0, 0, 0, 0, 0, turn]))
+    nearest = dut.ik(target, q)[0]
+    np.testing.assert_allclose(np.max(np.abs(nearest - q)), abs(largest_move), atol=1e-6)
+    reached = dut.sensor_pose(nearest)
+    np.testing.assert_allclose(reached[:3, 3], target[:3, 3], atol=1e-9)
+    np.testing.assert_allclose(reached[:3, 2], target[:3, 2], atol=1e-9)

@@ -42,6 +42,9 @@ def test_the_defaults_and_the_examples_pass():
      "field 'planner.stop.interval_cost': expected a number > 0, got 0"),
     ("{planner: {stop: {rule: early}}}",
      "field 'planner.stop.rule': expected one of 'paper', 'box', got 'early'"),
+    ("{robot: {sensor_roll_step_deg: 45}}",
+     "field 'robot.sensor_roll_step_deg': expected 0, 90 or 180 (the square grid's "
+     "symmetries), got 45"),
     ("{robot: {initial_position: [0, 0, 0]}}",
      "field 'robot.initial_position': expected 6 finite numbers"),
     ("{mapping: {lower: [0, 0, 1.0]}}",
