@@ -14,13 +14,17 @@ explained against, not a height band that deletes what lies low.
 
 How:
 - Coordinate descent over the columns' heights, 2 cm cells then 1 cm. Each cell tries a few
-  heights (the table, its neighbours', the expected one, and the heights at which the
-  readings' sub-rays land in it), and a trial re-predicts only the zones whose sub-rays cross
-  that column: every sub-ray keeps the list of columns it crosses, and its depth changes only
-  if the cell lies before (or is) its current first hit.
+  heights (the table, its neighbours', and the heights at which the readings' sub-rays land in
+  it), and a trial re-predicts only the zones whose sub-rays cross that column: every sub-ray
+  keeps the list of columns it crosses, and its depth changes only if the cell lies before
+  (or is) its current first hit.
 - The prior is the box fit, not the empty table: a column costs `column_cost` where it departs
-  from the box's height, plus its walls to its neighbours. So what no view saw stays as the
-  box has it, and a cell departs only where the readings pay for it.
+  from the box's height, plus its walls to its neighbours. So a cell departs only where the
+  readings pay for it.
+- Two starts, the lower cost kept (`_descend_levels`): the box's columns, where what no view
+  saw stays as the box has it, and where the readings put surfaces (`_back_projection`), which
+  raises a part the box lacks that single columns could not (a flange's plate, a gripper's
+  fingers); there a cell no view saw is table, and pays the prior for it.
 - A group of columns raised outside the box stays only if the readings need it
   (`_needed_parts`), and lone groups far smaller than the object are dropped
   (`_object_columns`).
@@ -547,7 +551,8 @@ def _descend_levels(readings: _Readings, start: OrientedBox, table_height: float
                     params: HeightMapParams, screen: bool, initial: str) -> _Levels:
     """The coordinate descent, coarse cells to fine, from the box's columns (`initial` "box")
     or from `_back_projection` ("readings"), to the finest cells or, with `screen`, to the
-    coarsest when no column is needed outside the box there.
+    coarsest when no column is needed outside the box there (`fit_height_map` then keeps the
+    other start's fit, whose parts outside the box still have to pass `_needed_parts`).
 
     Why two starts: the descent moves one column at a time, and under the median rule a zone's
     prediction changes only once about half its footprint has moved, so a part the box start
@@ -572,7 +577,7 @@ def _descend_levels(readings: _Readings, start: OrientedBox, table_height: float
         cost = readings.descend(edges_x, edges_y, flat, expected.reshape(-1),
                                 active.reshape(-1), params)
         previous = (edges_x, edges_y, flat.reshape(heights.shape))
-        if screen and size == params.cells[0] and not _outside(
+        if screen and size == params.cells[0] and len(params.cells) > 1 and not _outside(
                 _needed_parts(readings, edges_x, edges_y, previous[2], expected, params),
                 expected, params.min_height):
             return _Levels(*previous, expected, cost, screened=True)
@@ -831,7 +836,7 @@ class ShapeEstimator(BoxEstimator):
 
     The height map is fitted around the box fit and expects it (`_descend`'s prior is the box,
     not the empty table), so a column departs from the box only where the readings pay for
-    it, and what no view saw stays as the box has it. Its box is reported when it is larger
+    it (see `fit_height_map` for its two starts). Its box is reported when it is larger
     than the box fit's upper bound in some dimension: the readings show object outside
     anything a box explains (the gripper's fingers, the flange's plate). Otherwise the box fit
     stands, 0.5-2 mm on boxes, where the height map's 1 cm columns add a spurious strip about

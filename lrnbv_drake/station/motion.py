@@ -1,12 +1,14 @@
 """Moving the sensor to a pose: analytic IK, collision checks in SceneGraph, a limited trajectory.
 
-For a target sensor pose the planner takes every IK branch, nearest to the current joints first,
-and keeps the first one whose configuration and straight joint-space path are collision free
+For a target sensor pose the planner takes every IK branch of the pose and of the pose rolled
+about the sensor's optical axis by the allowed steps (`robot.sensor_roll_step_deg`: the same
+view, its square grid of zones in another order), nearest to the current joints first, and
+keeps the first one whose configuration and straight joint-space path are collision free
 (robot against table, object and itself, with padding) and keep the sensor inside the
 workspace all along (the hardware's safety limits refuse any command that leaves it). If no
-straight path qualifies it tries the path through the home configuration. The result is a
-typed `MotionPlan`: a failure says why and never raises, so an episode can try another
-viewpoint.
+straight path qualifies it tries a detour over the object, then the path through the home
+configuration. The result is a typed `MotionPlan`: a failure says why and never raises, so an
+episode can try another viewpoint.
 
 Trajectories are synchronised trapezoidal velocity profiles through the waypoints (stopping at
 each), represented exactly as a cubic-Hermite `PiecewisePolynomial` (a quadratic is a cubic).
@@ -119,8 +121,12 @@ class MotionPlanner:
         self.max_acceleration = kinematics.ACCELERATION_LIMIT * \
             scenario.robot.acceleration_fraction
         self.home = kinematics.HOME.copy()
-        # The rolls about the optical axis a view may take (`robot.sensor_roll_step_deg`).
+        # The rolls about the optical axis a view may take (`robot.sensor_roll_step_deg`):
+        # only the square grid's symmetries, or a rolled view would see other directions.
         step = scenario.robot.sensor_roll_step_deg
+        if step not in (0, 90, 180):
+            raise ValueError(f"robot.sensor_roll_step_deg: expected 0, 90 or 180 (the square "
+                             f"grid's symmetries), got {step!r}")
         self._rolls = np.stack([_roll(math.radians(a)) for a in
                                 (np.arange(0.0, 360.0, step) if step > 0 else [0.0])])
         self._path_step = scenario.robot.collision_check_step
@@ -175,21 +181,24 @@ class MotionPlanner:
         X_WS = np.asarray(X_WS, float).reshape(-1, 4, 4)
         X_base_tool0 = self._X_base_W @ (X_WS[:, None] @ self._rolls) @ self._X_S_tool0
         Q, ok = kinematics.inverse_kinematics(X_base_tool0.reshape(-1, 4, 4))
-        Q = kinematics.nearest_equivalents(Q.reshape(len(X_WS), -1, 6), q_current)
-        ok = ok.reshape(len(X_WS), -1)
+        per_pose = Q.shape[1] * len(self._rolls)
+        Q = kinematics.nearest_equivalents(Q.reshape(len(X_WS), per_pose, 6), q_current)
+        ok = ok.reshape(len(X_WS), per_pose)
         cost = np.where(ok, np.max(np.abs(Q - q_current) / self.max_velocity, axis=-1), np.inf)
         order = np.argsort(cost, axis=1, kind="stable")
         return Q[np.arange(len(Q))[:, None], order], ok.sum(axis=1)
 
     def ik(self, X_WS: np.ndarray, q_current: np.ndarray) -> np.ndarray:
-        """All IK solutions for sensor pose X_WS, each joint at its 2-pi equivalent nearest
-        q_current, sorted by the time the slowest joint needs (nearest first). Shape (k, 6)."""
+        """All IK solutions for sensor pose X_WS and its allowed rolls about the optical axis,
+        each joint at its 2-pi equivalent nearest q_current, sorted by the time the slowest
+        joint needs (nearest first). Shape (k, 6)."""
         Q, n = self.ik_batch(X_WS, np.asarray(q_current, float))
         return Q[0, :n[0]]
 
     def plan(self, q_current: np.ndarray, X_WS: np.ndarray, start_time: float = 0.0
              ) -> MotionPlan:
-        """Plans a motion from joints `q_current` to sensor pose `X_WS` (4x4)."""
+        """Plans a motion from joints `q_current` to sensor pose `X_WS` (4x4), or to it rolled
+        about the optical axis by an allowed step where that is the nearer configuration."""
         q_current = np.asarray(q_current, float)
         p = np.asarray(X_WS)[:3, 3]
         lower, upper = self.workspace

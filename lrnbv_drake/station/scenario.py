@@ -47,7 +47,9 @@ class RobotConfig:
     # The sensor may be rolled about its optical axis by a multiple of this, in degrees, when
     # that moves the arm less: its 8x8 zones are square, so a rolled view covers the same
     # zones in another order. 180 keeps even the emitter's 43 x 58 degree illumination where
-    # it was; 90 does not; 0: every view exactly as planned (docs/results.md).
+    # it was; 90 does not; 0: every view exactly as planned (docs/results.md; also 0 with a
+    # calibrated zone-direction table that is not symmetric: the planner scores the view as
+    # planned).
     sensor_roll_step_deg: float = 180.0
     # Hardware only: the controller's IP address.
     robot_ip: str = ""
