@@ -34,6 +34,7 @@ How:
 
 from __future__ import annotations
 
+import concurrent.futures
 import copy
 import dataclasses as dc
 import math
@@ -230,7 +231,7 @@ def _prior(c, h, heights, expected, ny, size, wall_cost, volume_cost, column_cos
             + (column_cost if departure > min_height else 0.0))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _descend(o, d, measured, sigma, m, table_t, start, cell, t_in, t_out, cell_start,
              cell_cross, cross_ray, heights, expected, candidates, cand_start, ny, rule_args,
              loss_scale, no_return, wall_cost, volume_cost, column_cost, min_height, size,
@@ -346,7 +347,7 @@ def _descend(o, d, measured, sigma, m, table_t, start, cell, t_in, t_out, cell_s
     return zone_cost.sum() + prior
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _all_crossings(o, d, edges_x, edges_y, hmax):
     """`_crossings` counted, then filled: (start, cell, t_in, t_out)."""
     start = np.empty(o.shape[0] + 1, np.int64)
@@ -511,9 +512,11 @@ def fit_height_map(rays: ZoneRays, start: OrientedBox, table_height: float,
     # Two starts, the lower cost of those that reach the finest cells kept: the box fit, and
     # where the readings put surfaces (never screened: a gripper's 18 mm fingers need the
     # fine cells to stand).
-    fits = [_descend_levels(readings, start, table_height, origin, to_grid, half, params,
-                            screen and initial == "box", initial)
-            for initial in ("box", "readings")]
+    # The two are independent and the descent releases the GIL: side by side on two cores.
+    with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
+        fits = list(pool.map(lambda initial: _descend_levels(
+            readings, start, table_height, origin, to_grid, half, params,
+            screen and initial == "box", initial), ("box", "readings")))
     finished = [f for f in fits if not f.screened]
     edges_x, edges_y, grid, expected = min(finished, key=lambda f: f.cost)[:4]
     grid = _needed_parts(readings, edges_x, edges_y, grid, expected, params)
