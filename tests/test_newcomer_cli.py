@@ -24,9 +24,17 @@ from lrnbv_drake.cli.out_dir import MARKERS
 WAIT = 90.0  # upper bound of every wait on a subprocess; a passing run never comes near it
 
 
+#: Ctrl-C as a terminal delivers it: a process inherits an ignored SIGINT, and a test runner
+#: started in the background (a CI job, `make test &`) has it ignored, so the child would
+#: never see the interrupt the tests send. (Not `preexec_fn`: unsafe with the runner's threads.)
+AS_IN_A_TERMINAL = "import signal; signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+
+
 def _lrnbv(*argv: str, **kwargs) -> subprocess.Popen[str]:
     """`lrnbv ARGV` in its own process group (as a shell runs a foreground command)."""
-    return subprocess.Popen([sys.executable, "-m", "lrnbv_drake.cli.main", *argv],
+    code = AS_IN_A_TERMINAL + "import sys; from lrnbv_drake.cli.main import main; " \
+        "sys.exit(main(sys.argv[1:]))"
+    return subprocess.Popen([sys.executable, "-c", code, *argv],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, **kwargs)
 
@@ -160,7 +168,7 @@ def test_a_run_that_finds_no_object_exits_1(tmp_path, capsys):
 
 #: Runs `lrnbv run` with the acquisition loop printing each capture and holding after the
 #: second, so that the test interrupts an episode that has captured exactly two frames.
-HOLD_AFTER_TWO = """
+HOLD_AFTER_TWO = AS_IN_A_TERMINAL + """
 import sys, time
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.core.acquisition import AcquisitionSequencer
