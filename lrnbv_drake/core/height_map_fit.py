@@ -378,23 +378,22 @@ def _data_cost(o, d, table_t, measured, sigma, m, edges_x, edges_y, heights, hma
     return cost
 
 
-def _landing_points(o: np.ndarray, d: np.ndarray, reach: np.ndarray, edges_x: np.ndarray,
-                    edges_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Where the sub-rays, taken to their zone's reading, land: each one's cell (flat index,
+def _landing_points(landing: np.ndarray, edges_x: np.ndarray, edges_y: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Where on the grid the sub-rays land (`_Readings.landing`): each one's cell (flat index,
     -1 outside the grid's footprint) and height."""
-    p = o + reach[:, None] * d
-    ix = np.searchsorted(edges_x, p[:, 0], side="right") - 1
-    iy = np.searchsorted(edges_y, p[:, 1], side="right") - 1
+    ix = np.searchsorted(edges_x, landing[:, 0], side="right") - 1
+    iy = np.searchsorted(edges_y, landing[:, 1], side="right") - 1
     nx, ny = len(edges_x) - 1, len(edges_y) - 1
     inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-    return np.where(inside, ix * ny + iy, -1), p[:, 2]
+    return np.where(inside, ix * ny + iy, -1), landing[:, 2]
 
 
-def _landing_heights(o: np.ndarray, d: np.ndarray, reach: np.ndarray, edges_x: np.ndarray,
-                     edges_y: np.ndarray, hmax: float) -> tuple[np.ndarray, np.ndarray]:
+def _landing_heights(landing: np.ndarray, edges_x: np.ndarray, edges_y: np.ndarray,
+                     hmax: float) -> tuple[np.ndarray, np.ndarray]:
     """Each grid cell's candidate heights: where the sub-rays, taken to their zone's reading,
     land in it (5 mm steps), as CSR (start, values)."""
-    cell, z = _landing_points(o, d, reach, edges_x, edges_y)
+    cell, z = _landing_points(landing, edges_x, edges_y)
     ok = (cell >= 0) & (z > 0) & (z <= hmax)
     pairs = np.unique(np.stack([cell[ok], np.round(z[ok] / 0.005) * 0.005], axis=1), axis=0)
     n_cells = (len(edges_x) - 1) * (len(edges_y) - 1)
@@ -435,7 +434,8 @@ class _Readings:
             _table_depths(rays.origins, rays.directions, i, table_height, fit_params.extent(),
                           table_t[i])
         self.table_t = table_t.reshape(-1)
-        self.reach = np.repeat(rays.measured, m)
+        # The sub-rays' points at their zone's reading: where the readings put surfaces.
+        self.landing = self.o + np.repeat(rays.measured, m)[:, None] * self.d
         self.measured, self.sigma = rays.measured, rays.sigma
         self.rule = reduction_rule(model, fit_params.behaviour, m)
         self.loss = (fit_params.loss_scale, fit_params.no_return_residual)
@@ -454,8 +454,8 @@ class _Readings:
         out = copy.copy(self)
         out.hmax = hmax
         rays = np.repeat(zones, self.m)
-        out.o, out.d, out.table_t, out.reach = (self.o[rays], self.d[rays],
-                                                self.table_t[rays], self.reach[rays])
+        out.o, out.d, out.table_t, out.landing = (self.o[rays], self.d[rays],
+                                                  self.table_t[rays], self.landing[rays])
         out.measured, out.sigma = self.measured[zones], self.sigma[zones]
         out.zones = int(zones.sum())
         return out
@@ -476,8 +476,7 @@ class _Readings:
         order = np.argsort(cell, kind="stable").astype(np.int64)
         cell_start = np.searchsorted(cell[order], np.arange(nx * ny + 1)).astype(np.int64)
         cross_ray = np.repeat(np.arange(len(self.o)), np.diff(ray_start))
-        cand_start, candidates = _landing_heights(self.o, self.d, self.reach, edges_x, edges_y,
-                                                  self.hmax)
+        cand_start, candidates = _landing_heights(self.landing, edges_x, edges_y, self.hmax)
         return float(_descend(self.o, self.d, self.measured, self.sigma, self.m, self.table_t,
                               ray_start, cell, t_in, t_out, cell_start, order, cross_ray,
                               heights, expected, candidates, cand_start, ny, self.rule,
@@ -592,7 +591,7 @@ def _back_projection(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarr
     """(nx, ny) columns where the readings put surfaces: each cell's median height of the
     sub-rays' points at their zone's reading (0 where none lands, or lower than
     `min_height`). It smears a zone over its whole footprint, so it is a start, not a fit."""
-    cell, z = _landing_points(readings.o, readings.d, readings.reach, edges_x, edges_y)
+    cell, z = _landing_points(readings.landing, edges_x, edges_y)
     ok = (cell >= 0) & np.isfinite(z)
     heights = np.zeros((len(edges_x) - 1) * (len(edges_y) - 1))
     present = np.unique(cell[ok])

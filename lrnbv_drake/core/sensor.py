@@ -93,6 +93,12 @@ class ToFFrame:
         )
 
 
+#: Roll steps about the optical axis, degrees, that map the square grid of zones onto itself
+#: (`robot.sensor_roll_step_deg`; 0: no roll), and how they are named in an error.
+ROLL_STEPS_DEG = (0.0, 90.0, 180.0)
+ROLL_STEPS_TEXT = "0, 90 or 180 (the square grid's symmetries)"
+
+
 @dc.dataclass
 class ZoneGeometry:
     """Uniform zone model: `resolution` x `resolution` zones tiling a square field of view, each

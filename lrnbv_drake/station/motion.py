@@ -27,6 +27,7 @@ from pydrake.trajectories import PiecewisePolynomial
 from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.motion import MotionFailure, MotionPlan
 from lrnbv_drake.core.poses import look_at
+from lrnbv_drake.core.sensor import ROLL_STEPS_DEG, ROLL_STEPS_TEXT
 from lrnbv_drake.station.cell_models import add_cell_models, fixed_pose
 from lrnbv_drake.station.resources import make_robot_diagram_builder
 from lrnbv_drake.station.scenario import Scenario
@@ -124,9 +125,9 @@ class MotionPlanner:
         # The rolls about the optical axis a view may take (`robot.sensor_roll_step_deg`):
         # only the square grid's symmetries, or a rolled view would see other directions.
         step = scenario.robot.sensor_roll_step_deg
-        if step not in (0, 90, 180):
-            raise ValueError(f"robot.sensor_roll_step_deg: expected 0, 90 or 180 (the square "
-                             f"grid's symmetries), got {step!r}")
+        if step not in ROLL_STEPS_DEG:
+            raise ValueError(f"robot.sensor_roll_step_deg: expected {ROLL_STEPS_TEXT}, got "
+                             f"{step!r}")
         self._rolls = np.stack([_roll(math.radians(a)) for a in
                                 (np.arange(0.0, 360.0, step) if step > 0 else [0.0])])
         self._path_step = scenario.robot.collision_check_step

@@ -21,6 +21,7 @@ import trimesh
 import yaml
 
 from lrnbv_drake.core import objects
+from lrnbv_drake.core.sensor import ROLL_STEPS_DEG, ROLL_STEPS_TEXT
 from lrnbv_drake.core.tof_device import ACCURACY_LAWS, MERGED_DEPTHS, PROFILES, TARGET_ORDERS
 from lrnbv_drake.core.tof_protocol import RESOLUTIONS
 
@@ -146,8 +147,7 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("planner.cached_sample_spread", _at_least(0)),
     ("planner.travel_discount", _at_least(0)),
     ("robot.self_filter_padding", _at_least(0)),
-    ("robot.sensor_roll_step_deg", _number(lambda v: v in (0, 90, 180),
-                                           "0, 90 or 180 (the square grid's symmetries)")),
+    ("robot.sensor_roll_step_deg", _number(lambda v: v in ROLL_STEPS_DEG, ROLL_STEPS_TEXT)),
     ("planner.stop.rule", _one_of("paper", "box")),
     ("planner.stop.tolerance", _above(0)),
     ("planner.stop.stable_poses", _at_least(1)),
