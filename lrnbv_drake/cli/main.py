@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 
@@ -63,10 +65,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(words)
     args.command_line = ["lrnbv", *words]  # to tell how to resume
     try:
-        return COMMANDS[args.command](args)
+        code = COMMANDS[args.command](args)
     except KeyboardInterrupt:
         print(f"\nlrnbv {args.command}: interrupted (Ctrl-C)", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        code = EXIT_INTERRUPTED
+    if code == EXIT_INTERRUPTED and threading.current_thread() is threading.main_thread():
+        # Everything is saved and only exiting is left: a second Ctrl-C landing while the
+        # interpreter shuts down would turn 130 into a death by SIGINT or a stray traceback.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return code
 
 
 if __name__ == "__main__":
