@@ -33,7 +33,7 @@ AS_IN_A_TERMINAL = "import signal; signal.signal(signal.SIGINT, signal.default_i
 def _lrnbv(*argv: str, **kwargs) -> subprocess.Popen[str]:
     """`lrnbv ARGV` in its own process group (as a shell runs a foreground command)."""
     code = AS_IN_A_TERMINAL + "import sys; from lrnbv_drake.cli.main import main; " \
-        "sys.exit(main(sys.argv[1:]))"
+        "sys.exit(main())"
     return subprocess.Popen([sys.executable, "-c", code, *argv],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, **kwargs)
@@ -182,7 +182,7 @@ def record_and_hold(self, s, *args):
         time.sleep(600)
 
 AcquisitionSequencer._record = record_and_hold
-sys.exit(main(sys.argv[1:]))
+sys.exit(main())
 """
 
 

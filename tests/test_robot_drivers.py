@@ -157,8 +157,8 @@ def test_on_a_silent_link_nothing_blocks_and_no_stop_is_tried_when_closing(monke
     with pytest.raises(RuntimeError, match="did not answer servo_stop"):
         robot.servo_stop(2.0)  # blocked in the client: abandoned after STOP_TIMEOUT
     started = time.monotonic()
-    robot.disconnect()  # the client is stuck: killed at once
-    assert time.monotonic() - started < 1.0
+    robot.disconnect()  # the client is stuck: killed, not waited for (its call blocks 4 s)
+    assert time.monotonic() - started < 3.0  # the dashboard stop's bound (0.75 s) and slack
 
 
 def test_a_crashed_client_is_a_lost_link(monkeypatch):

@@ -226,17 +226,21 @@ def _stream_then_kill(client: RtdeClientProcess,
 def test_watchdog_stops_the_script_when_the_client_dies(
         emu: UrControllerEmulator, client: RtdeClientProcess, flags: int, register: str) -> None:
     client.connect("control", flags=flags)
-    killed_at, _ = _stream_then_kill(client, watchdog=10.0)
+    killed_at, _ = _stream_then_kill(client, watchdog=5.0)  # the product's frequency
     record = emu.wait_for(lambda r: r["watchdog_trips"], timeout=2.0)
     offset = record["script_uploads"][0]["protocol"]["int_offset"]
     assert offset == (24 if flags & FLAG_UPPER_RANGE_REGISTERS else 0)
     assert [(w["register"], w["min_frequency"], w["action"]) for w in record["watchdog"]] == \
-        [(register, 10.0, "stop")]
+        [(register, 5.0, "stop")]
     assert len(record["kicks"]) > 50  # every servoJ package writes the watched register
     trip = record["watchdog_trips"][0]
     assert trip["register"] == register
-    assert trip["last_kick"] <= killed_at + 0.01
-    assert 0.0 < trip["t"] - killed_at < 1.0  # 0.1 s of silence at 10 Hz, plus scheduling
+    # Nothing was written after the client died: 50 ms for the emulator to read its socket,
+    # plus any time it was itself starved of CPU after the kill (it then moves its last kick
+    # later, as a real controller does not starve).
+    starved = sum(s["seconds"] for s in record["starved"] if s["t"] > killed_at)
+    assert trip["last_kick"] <= killed_at + 0.05 + starved
+    assert trip["t"] - killed_at < 1.0  # 0.2 s of silence at 5 Hz, plus scheduling
     stopped = [p for p in record["program"] if p["event"] == "stopped"]
     assert [p["reason"] for p in stopped] == ["RTDE watchdog: no input update"]
     state = emu.state()
@@ -255,7 +259,7 @@ def test_without_watchdog_the_script_keeps_servoing_after_the_client_dies(
     assert state["program_running"] and state["runtime"] == "PLAYING"
     assert record["watchdog"] == [] and record["watchdog_trips"] == []
     assert [p["event"] for p in record["program"]] == ["started"]
-    assert record["commands"][-1]["t"] <= killed_at + 0.01
+    assert record["commands"][-1]["t"] <= killed_at + 0.05  # the emulator's read latency
     np.testing.assert_allclose(state["q"], end, atol=1e-9)  # still servoing the last target
 
 

@@ -69,9 +69,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"\nlrnbv {args.command}: interrupted (Ctrl-C)", file=sys.stderr)
         code = EXIT_INTERRUPTED
-    if code == EXIT_INTERRUPTED and threading.current_thread() is threading.main_thread():
-        # Everything is saved and only exiting is left: a second Ctrl-C landing while the
-        # interpreter shuts down would turn 130 into a death by SIGINT or a stray traceback.
+    if code == EXIT_INTERRUPTED and argv is None \
+            and threading.current_thread() is threading.main_thread():
+        # Run as the program, everything saved and only exiting left: a second Ctrl-C landing
+        # while the interpreter shuts down would turn 130 into a death by SIGINT or a stray
+        # traceback. (A caller that passes `argv` keeps its own handler.)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     return code
 

@@ -124,11 +124,13 @@ class RtdeClientProcess:
         return self.request("read")
 
     def kill(self) -> float:
-        """SIGKILL the child; returns the wall time of the kill."""
-        killed_at = time.time()
+        """SIGKILL the child; returns the wall time by which it is dead (taken after the
+        wait: a time taken before the kill would miss what the child sent if this process
+        were preempted between the two)."""
         if self.process is not None and self.process.poll() is None:
             self.process.kill()
             self.process.wait(5.0)
+        killed_at = time.time()
         if self.process is not None and self.process.stdin is not None:
             with contextlib.suppress(OSError):
                 self.process.stdin.close()
