@@ -306,7 +306,14 @@ def test_link_freeze_leaves_the_receive_interface_with_stale_values(
     before = client.request("sample", duration=0.2, period=0.02)
     assert before[-1]["timestamp"] - before[0]["timestamp"] > 0.1
     emu.freeze()
-    time.sleep(0.1)  # packages already in flight
+    # Packages already in flight: past them once two readings 0.1 s apart agree (at most 5 s,
+    # on a loaded machine the last ones may arrive late).
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline:
+        first = client.read()["timestamp"]
+        time.sleep(0.1)
+        if client.read()["timestamp"] == first:
+            break
     frozen = client.request("sample", duration=0.5, period=0.02)
     assert len({s["timestamp"] for s in frozen}) == 1
     assert all(s["q"] == frozen[0]["q"] and s["connected"] for s in frozen)
