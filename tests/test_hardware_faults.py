@@ -20,11 +20,11 @@ from collections.abc import Callable
 import pytest
 from ur_emulator import RtdeClientProcess, UrControllerEmulator, worker_host
 from ur_emulator.sessions import (
-    NOTICED,
     WhenMoving,
     cli_args,
     first_pose,
     journal_lines,
+    noticed_by,
     on_disk,
     servoj_times,
     time_limit,
@@ -94,7 +94,7 @@ def test_a_fault_mid_motion_stops_saves_explains_and_resumes(fault, tmp_path, ca
         assert ended - trigger.at < 5.0
         if kind == "disconnected":  # noticed after rtde_timeout, then shut down
             assert ended - trigger.at < RTDE_TIMEOUT + 3.0
-        assert max(servoj_times(record)) < trigger.at + NOTICED
+        assert max(servoj_times(record)) < noticed_by(record, trigger.at)
         assert record["watchdog"][0]["min_frequency"] == HardwareConfig().watchdog_frequency
         assert on_disk(out) == (1, 1, 1)  # the acquisition before the fault, everywhere
         recover(emu)

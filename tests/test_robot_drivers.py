@@ -24,7 +24,7 @@ from lrnbv_drake.core.robot_safety import (
 )
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
 from lrnbv_drake.drivers.rtde_client import FLAG_UPLOAD_SCRIPT, FLAG_UPPER_RANGE_REGISTERS
-from lrnbv_drake.drivers.rtde_robot import RtdeRobot
+from lrnbv_drake.drivers.rtde_robot import CLOSE_TIMEOUT, RtdeRobot
 from lrnbv_drake.systems.ur5e_command_sender import (
     SERVOJ_ACCELERATION,
     SERVOJ_SPEED,
@@ -157,8 +157,8 @@ def test_on_a_silent_link_nothing_blocks_and_no_stop_is_tried_when_closing(monke
     with pytest.raises(RuntimeError, match="did not answer servo_stop"):
         robot.servo_stop(2.0)  # blocked in the client: abandoned after STOP_TIMEOUT
     started = time.monotonic()
-    robot.disconnect()  # the client is stuck: killed, not waited for (its call blocks 4 s)
-    assert time.monotonic() - started < 3.0  # the dashboard stop's bound (0.75 s) and slack
+    robot.disconnect()  # the client is stuck: killed, not asked to close and waited for
+    assert time.monotonic() - started < CLOSE_TIMEOUT  # the dashboard's 0.75 s
 
 
 def test_a_crashed_client_is_a_lost_link(monkeypatch):

@@ -40,10 +40,10 @@ from typing import Any
 
 from .api import UrControllerEmulator, worker_host
 from .sessions import (
-    NOTICED,
     WhenMoving,
     cli_args,
     first_pose,
+    noticed_by,
     on_disk,
     servoj_times,
     time_limit,
@@ -164,7 +164,7 @@ def run_case(case: Case, host: str, folder: Path) -> dict[str, Any]:
         problems.append(f"stopped as {stopped.group(1)}, not {named}")
     if record is not None:
         if fault_at is not None and case.fault not in ("short_freeze", "interrupt") and [
-                t for t in servoj_times(record) if t > fault_at + NOTICED]:
+                t for t in servoj_times(record) if t > noticed_by(record, fault_at)]:
             problems.append("servoJ after the fault was noticed")
         if [t for t in servoj_times(record) if t > ended]:
             problems.append("servoJ after the session ended")

@@ -29,9 +29,9 @@ hardware: {sensor_driver: simulated, max_speed_fraction: 1.0}
 MOVING = 0.02
 #: From a fault on the controller to the session's last servoJ, seconds: the status read that
 #: sees it (every 8 ms) after the package that carries it (2 ms), and up to CAUSE_WAIT (0.25 s)
-#: for the status to name it: 0.26 s, doubled and more for a CI machine whose two cores also
-#: run the emulator, the ur_rtde client and another test worker.
-NOTICED = 1.0
+#: for the status to name it; `hardware.rtde_timeout` (0.5 s) leaves room for a loaded machine.
+#: Below that timeout, so a session that noticed faults only by the link's silence would fail.
+NOTICED = 0.5
 
 
 @functools.cache
@@ -106,6 +106,13 @@ class WhenMoving:
 def servoj_times(record: dict[str, Any]) -> list[float]:
     """When the emulator received each servoJ (wall time)."""
     return [c["t"] for c in record["commands"] if c["name"] == "servoJ"]
+
+
+def noticed_by(record: dict[str, Any], fault_at: float) -> float:
+    """When the session must have stopped servoing after a fault at `fault_at` (wall time):
+    NOTICED later, plus the time the emulator itself was starved of CPU since (it reads the
+    packages late then, and a real controller is never starved)."""
+    return fault_at + NOTICED + sum(s["seconds"] for s in record["starved"] if s["t"] > fault_at)
 
 
 @contextlib.contextmanager
