@@ -30,6 +30,7 @@ from ur_emulator import (
 )
 from ur_emulator.arm import rotation_vector
 from ur_emulator.control_script import split_programs
+from ur_emulator.record import starved_since
 from ur_emulator.sessions import time_limit
 
 pytest.importorskip("rtde_control")
@@ -208,9 +209,8 @@ def test_servoj_stream_moves_the_arm_with_the_lag_and_servo_stop_is_recorded(
 
 def _read_by(record: dict, killed_at: float) -> float:
     """When the emulator has read all a client killed at `killed_at` sent: 50 ms later, plus
-    any time it was itself starved of CPU since (it then moves its last kick later too; a
-    real controller does not starve)."""
-    return killed_at + 0.05 + sum(s["seconds"] for s in record["starved"] if s["t"] > killed_at)
+    any time it was itself starved of CPU since (it then moves its last kick later too)."""
+    return killed_at + 0.05 + starved_since(record, killed_at)
 
 
 def _stream_then_kill(client: RtdeClientProcess,

@@ -26,6 +26,13 @@ LISTS = (
 )
 
 
+def starved_since(record: dict[str, Any], t: float) -> float:
+    """Seconds the emulator was starved of CPU after wall time `t`, in a record as
+    `Record.as_data` gives it: it read the clients' packages that much later (a real
+    controller is never starved)."""
+    return sum(s["seconds"] for s in record["starved"] if s["t"] > t)
+
+
 class Record:
     """Append-only lists, one per kind of event."""
 

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from .api import UrControllerEmulator
+from .record import starved_since
 
 #: The session every test runs: HEU, two poses, the arm starting at the first one, frames
 #: rendered by the simulated board, and the speed cap at its maximum (1.0, pi rad/s, above
@@ -110,9 +111,8 @@ def servoj_times(record: dict[str, Any]) -> list[float]:
 
 def noticed_by(record: dict[str, Any], fault_at: float) -> float:
     """When the session must have stopped servoing after a fault at `fault_at` (wall time):
-    NOTICED later, plus the time the emulator itself was starved of CPU since (it reads the
-    packages late then, and a real controller is never starved)."""
-    return fault_at + NOTICED + sum(s["seconds"] for s in record["starved"] if s["t"] > fault_at)
+    NOTICED later, plus the time the emulator itself was starved of CPU since."""
+    return fault_at + NOTICED + starved_since(record, fault_at)
 
 
 @contextlib.contextmanager
