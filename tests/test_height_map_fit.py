@@ -10,7 +10,6 @@ from lrnbv_drake.core.box_fit import (
     BoxFitParams,
     ZoneRays,
     _as_vector,
-    near_box,
     predicted_depths,
     reduction_rule,
     zone_rays,
@@ -23,9 +22,9 @@ from lrnbv_drake.core.height_map_fit import (
     _box_columns,
     _Clip,
     _descend_levels,
-    _lands_inside,
     _needed_parts,
     _Readings,
+    _readings_around,
     fit_height_map,
 )
 from lrnbv_drake.core.poses import look_at
@@ -109,14 +108,9 @@ def test_the_flange_plate_the_box_start_misses_is_raised_from_the_readings():
     fit = estimator.estimate(start_near(truth))
     start = estimator.last.box
     assert start.dims[1] < truth.dims[1] - 0.05  # the box fit alone: the hub
-    params, origin = HeightMapParams(), np.array([*start.center[:2], 0.0])
-    c, s = np.cos(start.yaw), np.sin(start.yaw)
-    to_grid = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    half, hmax = start.dims[:2] / 2 + params.margin, start.dims[2] + params.margin
-    rays = estimator._rays
-    readings = _Readings(rays.take(near_box(rays, start, 0.0, params.margin)
-                                   & _lands_inside(rays, origin, to_grid, half, hmax)),
-                         origin, to_grid, 0.0, hmax, model, BoxFitParams())
+    params = HeightMapParams()
+    readings, origin, to_grid, half = _readings_around(estimator._rays, start, 0.0, model,
+                                                       BoxFitParams(), params)
     from_box, from_readings = (_descend_levels(readings, start, 0.0, origin, to_grid, half,
                                                params, False, initial)
                                for initial in ("box", "readings"))

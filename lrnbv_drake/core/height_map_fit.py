@@ -498,16 +498,10 @@ def fit_height_map(rays: ZoneRays, start: OrientedBox, table_height: float,
     there."""
     params = params or HeightMapParams()
     fit_params = fit_params or BoxFitParams()
-    c, s = math.cos(start.yaw), math.sin(start.yaw)
-    to_grid = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    origin = np.array([start.center[0], start.center[1], table_height])
-    hmax = float(start.dims[2]) + params.margin
-    half = start.dims[:2] / 2 + params.margin
-    rays = rays.take(near_box(rays, start, table_height, params.margin)
-                     & _lands_inside(rays, origin, to_grid, half, hmax))
-    if len(rays) == 0:
+    readings, origin, to_grid, half = _readings_around(rays, start, table_height, model,
+                                                       fit_params, params)
+    if readings is None:
         return None
-    readings = _Readings(rays, origin, to_grid, table_height, hmax, model, fit_params)
     # Two starts, the lower cost of those that reach the finest cells kept: the box fit, and
     # where the readings put surfaces (never screened: a gripper's 18 mm fingers need the
     # fine cells to stand).
@@ -535,6 +529,26 @@ def fit_height_map(rays: ZoneRays, start: OrientedBox, table_height: float,
         cost = readings.cost(edges_x, edges_y, grid)
     return HeightMap(grid, edges_x, edges_y, origin[:2].copy(), float(start.yaw), box,
                      lower, upper, extents, float(cost), len(rays))
+
+
+def _readings_around(rays: ZoneRays, start: OrientedBox, table_height: float,
+                     model: SensorModelParams, fit_params: BoxFitParams,
+                     params: HeightMapParams
+                     ) -> tuple[_Readings | None, np.ndarray, np.ndarray, np.ndarray]:
+    """The grid's frame around `start` (its origin on the table under the box's centre, the
+    rotation into it, the grid's half extent) and the readings fitted there: those near the
+    box that land inside the grid's volume (None if there are none)."""
+    c, s = math.cos(start.yaw), math.sin(start.yaw)
+    to_grid = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    origin = np.array([start.center[0], start.center[1], table_height])
+    hmax = float(start.dims[2]) + params.margin
+    half = start.dims[:2] / 2 + params.margin
+    rays = rays.take(near_box(rays, start, table_height, params.margin)
+                     & _lands_inside(rays, origin, to_grid, half, hmax))
+    if len(rays) == 0:
+        return None, origin, to_grid, half
+    return (_Readings(rays, origin, to_grid, table_height, hmax, model, fit_params), origin,
+            to_grid, half)
 
 
 class _Levels(NamedTuple):
