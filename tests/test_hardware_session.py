@@ -17,7 +17,7 @@ from pydrake.common.yaml import yaml_dump_typed
 
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.planning.heu import HeuParams, heu_poses
+from lrnbv_drake.core.planning.heu import heu_poses
 from lrnbv_drake.core.robot_safety import RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorTimeout
 from lrnbv_drake.experiments import session
@@ -50,7 +50,7 @@ def scenario():
 @pytest.fixture(scope="module")
 def q_first_pose(scenario):
     """Joints at HEU's first viewpoint: the episodes start there, so only one motion remains."""
-    poses = heu_poses(place_object(scenario).mesh.bounds.mean(axis=0), HeuParams())
+    poses = heu_poses(place_object(scenario).mesh.bounds.mean(axis=0), scenario.heu)
     return MotionPlanner(scenario).plan(kinematics.HOME.copy(), poses[0]).q_target
 
 

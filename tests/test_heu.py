@@ -4,10 +4,15 @@ import numpy as np
 import pytest
 
 from lrnbv_drake.core.acquisition import Acquisition
-from lrnbv_drake.core.planning.heu import HeuParams, HeuPolicy, heu_poses
+from lrnbv_drake.core.planning.config import HeuParams
+from lrnbv_drake.core.planning.heu import HeuPolicy, heu_poses
 from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation
 from lrnbv_drake.core.poses import look_at
 from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.station.cell_models import place_object
+from lrnbv_drake.station.motion import MotionPlanner
+from lrnbv_drake.station.parts import make_policy
+from lrnbv_drake.station.scenario import load_scenario
 
 
 def test_look_at_points_the_optical_axis_at_the_target():
@@ -72,3 +77,13 @@ def test_restore_goes_on_where_the_run_was():
     assert len(proposal.candidates) == len(expected.candidates) == 9
     np.testing.assert_array_equal(proposal.candidates, expected.candidates)
     assert proposal.candidate_info == expected.candidate_info
+
+
+def test_the_scenario_sets_the_ellipse_the_episode_visits():
+    scenario = load_scenario(data="heu: {n_poses: 7, height: 0.12, semi_axis_x: 0.3}")
+    placed = place_object(scenario)
+    dut = make_policy("heu", scenario, MotionPlanner(scenario), placed)
+    p = np.array([X[:3, 3] for X in dut.poses]) - placed.mesh.bounds.mean(axis=0)
+    assert len(p) == 7
+    np.testing.assert_allclose(p[:, 2], 0.12)
+    np.testing.assert_allclose(p[0, :2], [-0.3, 0.0], atol=1e-12)  # start_angle pi: -x

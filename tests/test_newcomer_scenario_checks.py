@@ -40,6 +40,7 @@ def test_the_defaults_and_the_examples_pass():
     ("{mapping: {resolution: .nan}}", "field 'mapping.resolution': expected a number > 0"),
     ("{planner: {stop: {interval_cost: 0}}}",
      "field 'planner.stop.interval_cost': expected a number > 0, got 0"),
+    ("{heu: {semi_axis_y: 0}}", "field 'heu.semi_axis_y': expected a number > 0, got 0"),
     ("{planner: {stop: {rule: early}}}",
      "field 'planner.stop.rule': expected one of 'paper', 'box', got 'early'"),
     ("{robot: {sensor_roll_step_deg: 45}}",

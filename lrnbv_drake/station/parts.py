@@ -176,7 +176,7 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
     """The viewpoint policy called `planner`."""
     if planner == "heu":
         # The object's true centre is given to the HEU baseline only, as in the paper.
-        return HeuPolicy(placed.mesh.bounds.mean(axis=0))
+        return HeuPolicy(placed.mesh.bounds.mean(axis=0), scenario.heu)
     if planner in ("lrnbv", "nbv"):
         return LrNbvPolicy(
             scenario.planner, zone_geometry(scenario),

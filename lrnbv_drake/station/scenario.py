@@ -18,7 +18,7 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.visualization import VisualizationConfig
 
 from lrnbv_drake.core.kinematics import HOME
-from lrnbv_drake.core.planning.config import PlannerParams
+from lrnbv_drake.core.planning.config import HeuParams, PlannerParams
 from lrnbv_drake.station.hardware_config import HardwareConfig
 from lrnbv_drake.station.resources import package_url
 from lrnbv_drake.station.scenario_checks import ScenarioError, check_ranges, parse_yaml
@@ -267,6 +267,8 @@ class Scenario:
     mapping: MappingConfig = dc.field(default_factory=MappingConfig)
     extraction: ExtractionConfig = dc.field(default_factory=ExtractionConfig)
     planner: PlannerParams = dc.field(default_factory=PlannerParams)
+    # The HEU baseline's ellipse of viewpoints (the paper's 13 views by default).
+    heu: HeuParams = dc.field(default_factory=HeuParams)
     # Hard cap on acquisitions in one episode, whatever the planner.
     max_poses: int = 40
     # Drake's Meshcat settings (ApplyVisualizationConfig).

@@ -40,13 +40,13 @@ def first_pose() -> tuple[float, ...]:
     """Joints at HEU's first viewpoint of the default scenario, where the sessions start, so
     that one motion remains (to the second pose)."""
     from lrnbv_drake.core import kinematics
-    from lrnbv_drake.core.planning.heu import HeuParams, heu_poses
+    from lrnbv_drake.core.planning.heu import heu_poses
     from lrnbv_drake.station.cell_models import place_object
     from lrnbv_drake.station.motion import MotionPlanner
     from lrnbv_drake.station.scenario import load_scenario
 
     scenario = load_scenario(data=SCENARIO)
-    poses = heu_poses(place_object(scenario).mesh.bounds.mean(axis=0), HeuParams())
+    poses = heu_poses(place_object(scenario).mesh.bounds.mean(axis=0), scenario.heu)
     return tuple(MotionPlanner(scenario).plan(kinematics.HOME.copy(), poses[0]).q_target)
 
 

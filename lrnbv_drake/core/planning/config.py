@@ -6,6 +6,7 @@ loader reads the dataclass field types.
 """
 
 import dataclasses as dc
+import math
 
 
 @dc.dataclass
@@ -99,3 +100,18 @@ class PlannerParams:
     # twenty end 20 mm off, where 0 kept all within 6 mm (docs/results.md): accuracy first,
     # so 0 (the paper's: utilities as they are) is the default.
     travel_discount: float = 0.0
+
+
+@dc.dataclass
+class HeuParams:
+    """HEU's ellipse of viewpoints (core/planning/heu.py)."""
+
+    # Number of poses (13 in the paper).
+    n_poses: int = 13
+    # Semi-axes of the ellipse along world x and y, metres.
+    semi_axis_x: float = 0.22
+    semi_axis_y: float = 0.28
+    # Height of the ellipse above the object's centre, metres.
+    height: float = 0.25
+    # Angle of the first pose about the object (pi: on the robot's side), radians.
+    start_angle: float = math.pi

@@ -7,28 +7,13 @@ the robot cannot reach is skipped, and the number of skipped poses is reported.
 
 from __future__ import annotations
 
-import dataclasses as dc
 from collections.abc import Sequence
 
 import numpy as np
 
+from lrnbv_drake.core.planning.config import HeuParams
 from lrnbv_drake.core.planning.policy import Observation, Proposal, Recorded, ViewpointPolicy
 from lrnbv_drake.core.poses import look_at
-
-
-@dc.dataclass
-class HeuParams:
-    """The ellipse of viewpoints."""
-
-    # Number of poses (13 in the paper).
-    n_poses: int = 13
-    # Semi-axes of the ellipse along world x and y, metres.
-    semi_axis_x: float = 0.22
-    semi_axis_y: float = 0.28
-    # Height of the ellipse above the object's centre, metres.
-    height: float = 0.25
-    # Angle of the first pose about the object (pi: on the robot's side), radians.
-    start_angle: float = np.pi
 
 
 def heu_poses(target: np.ndarray, params: HeuParams) -> list[np.ndarray]:
