@@ -215,7 +215,7 @@ def make_modules(arm: FakeArm) -> dict[str, types.ModuleType]:
 
         def setWatchdog(self, min_frequency=10.0):
             arm.record("setWatchdog", min_frequency)
-            return True
+            return arm.program_running  # a command to a stopped script fails
 
         def kickWatchdog(self):
             arm.record("kickWatchdog")

@@ -107,6 +107,23 @@ def test_a_failed_connection_says_what_to_check_and_closes_what_was_open(monkeyp
     assert "Remote Control" in str(info.value) and "10.0.0.9" in str(info.value)
 
 
+def test_control_without_a_watchdog_is_refused_before_connecting(monkeypatch):
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+    with pytest.raises(ValueError, match="watchdog_frequency must be > 0 Hz"):
+        RtdeRobot("10.0.0.5", watchdog_frequency=0.0)
+    assert arm.connections == []
+
+
+def test_a_watchdog_the_controller_refuses_fails_the_connection(monkeypatch):
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+    arm.program_running = False  # the uploaded script stopped at once (a stopped program)
+    with pytest.raises(RobotConnectionError, match=r"refused setWatchdog\(5.0\)"):
+        RtdeRobot("10.0.0.5")
+    assert [c.args for c in arm.calls if c.name == "setWatchdog"] == [(5.0,)]
+
+
 def test_the_client_feeds_the_watchdog_while_the_diagram_is_held_and_not_longer(monkeypatch):
     """Between commands (a planning step holds the diagram) the client kicks the watchdog
     for `watchdog_hold` seconds after the diagram's last sign of life, then lets it trip."""

@@ -87,12 +87,13 @@ class Clients:
         flags = FLAG_UPLOAD_SCRIPT | (FLAG_UPPER_RANGE_REGISTERS if upper_range_registers
                                       else 0)
         self.control = rtde_control.RTDEControlInterface(robot_ip, frequency, flags)
-        if watchdog_frequency > 0:
-            self.control.setWatchdog(watchdog_frequency)
-            self.hold = watchdog_hold
-            self.heartbeat = time.monotonic()
-            period = min(MAX_KICK_PERIOD, 0.25 / watchdog_frequency)
-            threading.Thread(target=self._keep, args=(period,), daemon=True).start()
+        if not self.control.setWatchdog(watchdog_frequency):
+            raise RuntimeError(f"the controller's script refused setWatchdog"
+                               f"({watchdog_frequency}): it is not running")
+        self.hold = watchdog_hold
+        self.heartbeat = time.monotonic()
+        period = min(MAX_KICK_PERIOD, 0.25 / watchdog_frequency)
+        threading.Thread(target=self._keep, args=(period,), daemon=True).start()
 
     def _keep(self, period: float) -> None:
         while not self.closing.wait(period):

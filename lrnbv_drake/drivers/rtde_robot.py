@@ -143,17 +143,23 @@ class RtdeRobot:
 
     Constructing it connects; with `control`, it also uploads ur_rtde's control script (which
     needs the robot in Remote Control mode) and sets the script's RTDE watchdog to
-    `watchdog_frequency` (Hz; 0 leaves it off): the controller stops the script when this
+    `watchdog_frequency` (Hz, > 0): the controller stops the script when this
     client has not written for 1/f s. `kick_watchdog` feeds it from the diagram, and the
     client keeps feeding it while the diagram is held for at most `watchdog_hold` s.
 
     Raises:
+        ValueError: `control` without a watchdog (`watchdog_frequency` <= 0): a client that
+            dies would leave the script servoing its last target.
         RobotConnectionError: ur_rtde's RuntimeError, with the usual causes appended.
     """
 
     def __init__(self, robot_ip: str, *, frequency: float = -1.0,
                  upper_range_registers: bool = False, control: bool = True,
                  watchdog_frequency: float = 5.0, watchdog_hold: float = 10.0) -> None:
+        if control and not watchdog_frequency > 0:
+            raise ValueError(f"watchdog_frequency must be > 0 Hz with control (a client that "
+                             f"dies would leave the script servoing its last target), got "
+                             f"{watchdog_frequency}")
         self.robot_ip = robot_ip
         self.control = control
         self._link = spawn_client()

@@ -75,11 +75,11 @@ def check_hardware_config(scenario: Scenario, *, addresses: bool = True) -> None
         raise ScenarioError(f"field 'hardware.sensor_driver': expected one of "
                             f"{SENSOR_DRIVERS}, got {hw.sensor_driver!r}")
     for name in ("status_period", "servo_period", "stop_deceleration", "max_tracking_error",
-                 "rtde_timeout", "still_speed", "sensor_timeout", "watchdog_hold"):
+                 "rtde_timeout", "still_speed", "sensor_timeout", "watchdog_frequency",
+                 "watchdog_hold"):
         if not getattr(hw, name) > 0:
             raise ScenarioError(f"field 'hardware.{name}': must be > 0, got {getattr(hw, name)}")
-    for name in ("command_jump_tolerance", "workspace_margin", "min_table_clearance",
-                 "watchdog_frequency"):
+    for name in ("command_jump_tolerance", "workspace_margin", "min_table_clearance"):
         if not getattr(hw, name) >= 0:
             raise ScenarioError(f"field 'hardware.{name}': must be >= 0, got "
                                 f"{getattr(hw, name)}")

@@ -50,7 +50,8 @@ class HardwareConfig:
     # when the client has not written for 1/f s. A dead client stops the arm 0.2 s later; the
     # diagram writes every status_period (8 ms, 25 times per 0.2 s), and 0.2 s is twice the
     # longest scheduling gap seen with several sessions sharing two cores, which made 10 Hz
-    # trip spuriously (docs/hardware.md, 2). 0 turns it off.
+    # trip spuriously (docs/hardware.md, 2). It cannot be turned off: without it, a client
+    # that dies mid-motion leaves the script servoing its last target.
     watchdog_frequency: float = 5.0
     # While the diagram is held (a planning step: 0.06 to 0.12 s an iteration, under a second
     # with the motion planning), the driver keeps the watchdog fed for at most this long,
