@@ -19,7 +19,8 @@ from lrnbv_drake.cli.main import main
 from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.planning.heu import heu_poses
 from lrnbv_drake.core.robot_safety import RobotFault
-from lrnbv_drake.drivers.tof_serial import SensorTimeout
+from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.drivers.tof_serial import SensorError, SensorTimeout, ToFSerialReader
 from lrnbv_drake.experiments import session
 from lrnbv_drake.experiments.episode import run_episode
 from lrnbv_drake.experiments.recording import AcquisitionJournal, RecordingError
@@ -321,6 +322,23 @@ def test_a_silent_sensor_is_found_before_anything_moves(scenario, q_first_pose, 
     assert [kind for kind, _ in arm.connections] == ["receive"]
 
 
+def test_a_sensor_at_another_resolution_is_found_before_anything_moves(
+        scenario, q_first_pose, tmp_path, monkeypatch):
+    arm = fake_rtde.FakeArm(q_first_pose)
+    fake_rtde.install(monkeypatch, arm)
+
+    class FourByFourBoard(ToFSerialReader):
+        def wait_for_frame(self, newer_than_sequence=0, timeout=None):
+            return ToFFrame.empty(4, sequence=1)
+
+    monkeypatch.setattr(session, "ToFSerialReader", FourByFourBoard)
+    serial = load_scenario(data="hardware: {sensor_driver: serial}\n"
+                                "sensor: {serial_port: 'loop://'}", defaults=scenario)
+    with pytest.raises(SensorError, match="loop:// streams 4x4 zones"):
+        run_session(serial, "heu", tmp_path, confirm=lambda text: True)
+    assert [kind for kind, _ in arm.connections] == ["receive"]
+
+
 def test_a_folder_with_a_session_is_not_overwritten(finished, scenario):
     with pytest.raises(SessionError, match="--resume"):
         run_session(scenario, "heu", finished[1], confirm=lambda text: True)
@@ -334,6 +352,20 @@ def test_the_journal_drops_a_torn_last_line(finished, tmp_path):
     torn.write_text(lines[0][:10] + "\n" + lines[1] + "\n")
     with pytest.raises(RecordingError, match="line 1"):
         AcquisitionJournal(torn).load()
+
+
+def test_an_append_after_a_torn_line_keeps_every_acquisition(finished, tmp_path):
+    """A crash (or a full disk) mid-append leaves half a line; the resumed run's appends must
+    not join it, and its bytes are kept aside."""
+    recorded = AcquisitionJournal(finished[1] / JOURNAL_FILE).load()
+    lines = (finished[1] / JOURNAL_FILE).read_text().splitlines()
+    dut = AcquisitionJournal(tmp_path / JOURNAL_FILE)
+    half = lines[1][: len(lines[1]) // 2]
+    dut.path.write_text(lines[0] + "\n" + half)
+    dut.append(recorded[1])
+    dut.append(recorded[1])
+    assert [a.index for a in dut.load()] == [0, recorded[1].index, recorded[1].index]
+    assert dut.torn_path.read_text() == half + "\n"
 
 
 @pytest.mark.parametrize("argv, words", [

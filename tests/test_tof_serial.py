@@ -300,6 +300,21 @@ def test_system_copies_the_drivers_frame_to_tof_frame() -> None:
         _assert_same(tof_frame.Eval(context), _frame(7))
 
 
+def test_system_stops_on_a_frame_of_another_resolution() -> None:
+    """A board left at `RES 16` must not feed 4x4 frames to a diagram built for 8x8."""
+    four = ToFFrame(distance_mm=np.full((4, 4), 500), status=np.full((4, 4), 5),
+                    sigma_mm=np.full((4, 4), 3), sequence=1, timestamp_us=0)
+    with ToFSerialReader("loop://") as driver:
+        dut = ToFSerialReceiver(driver, period=0.1, resolution=8)
+        simulator = Simulator(dut)
+        _eventually(lambda: driver.connected, "loop:// opens")
+        driver.write(encode_frame(four))
+        driver.wait_for_frame(0, timeout=WAIT)
+        with pytest.raises(SensorError, match=r"loop:// streams 4x4 zones but the scenario's "
+                                              r"sensor\.resolution is 8: send the board `RES 64`"):
+            simulator.AdvanceTo(0.15)
+
+
 # --- Commands -------------------------------------------------------------------------------
 
 

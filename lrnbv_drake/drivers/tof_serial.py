@@ -75,6 +75,18 @@ def check_port_exists(port: str) -> None:
         "no serial port is connected (is the board plugged in?)"))
 
 
+def check_resolution(frame: ToFFrame, expected: int, port: str) -> None:
+    """Raises SensorError when the board on `port` streams another zone layout than the
+    scenario's `sensor.resolution`: the map, the planner and the estimator assume the
+    scenario's (a board left at `RES 16` from a terminal, or another board)."""
+    if frame.resolution != expected:
+        got = frame.resolution
+        raise SensorError(
+            f"the sensor on {port} streams {got}x{got} zones but the scenario's "
+            f"sensor.resolution is {expected}: send the board `RES {expected * expected}` "
+            f"(docs/serial-protocol.md, section 5) or set the scenario to {got}")
+
+
 @dc.dataclass
 class SerialStats:
     """What the driver has seen since it started.

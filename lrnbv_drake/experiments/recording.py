@@ -148,9 +148,30 @@ class AcquisitionJournal:
     def __init__(self, path: Path) -> None:
         self.path = path
 
+    @property
+    def torn_path(self) -> Path:
+        """Where `append` moves a torn line's bytes (`<journal>.torn`)."""
+        return self.path.with_name(self.path.name + ".torn")
+
     def append(self, acquisition: Acquisition) -> None:
-        with self.path.open("a") as f:
-            f.write(acquisition_to_json(acquisition) + "\n")
+        """Appends one line and fsyncs it. A torn line left at the end (a crash or a full disk
+        mid-write, which `load` drops) is first moved to `torn_path`: written after it, this
+        line would join it, and `load` would drop both or fail on every later resume."""
+        line = (acquisition_to_json(acquisition) + "\n").encode()
+        with self.path.open("ab+") as f:
+            end = f.seek(0, os.SEEK_END)
+            f.seek(max(end - 1, 0))
+            if end and f.read(1) != b"\n":
+                f.seek(0)
+                data = f.read()
+                start = data.rfind(b"\n") + 1
+                with self.torn_path.open("ab") as torn:
+                    torn.write(data[start:] + b"\n")
+                    torn.flush()
+                    os.fsync(torn.fileno())
+                f.truncate(start)
+                _log.warning("%s: moved a torn last line to %s", self.path, self.torn_path)
+            f.write(line)
             f.flush()
             os.fsync(f.fileno())
 

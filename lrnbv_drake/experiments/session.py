@@ -51,7 +51,7 @@ from pydrake.systems.framework import Context
 from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
 from lrnbv_drake.core.robot_safety import Ur5eStatus, read_status, tcp_pose_error
 from lrnbv_drake.drivers.rtde_robot import RtdeRobot
-from lrnbv_drake.drivers.tof_serial import ToFSerialReader
+from lrnbv_drake.drivers.tof_serial import ToFSerialReader, check_resolution
 from lrnbv_drake.experiments.episode import (
     PLANNERS,
     EpisodeDiagram,
@@ -190,14 +190,17 @@ def _preflight(scenario: Scenario, q: np.ndarray) -> None:
 
 
 def _check_sensor(scenario: Scenario) -> None:
-    """Waits for one frame from the serial sensor, so that the arm never moves blind.
+    """Waits for one frame from the serial sensor, so that the arm never moves blind, and
+    checks that its zones are the scenario's.
 
     Raises:
         SensorTimeout: naming the port and what the driver saw.
+        SensorError: the board streams another resolution.
     """
     s = scenario.sensor
     with ToFSerialReader(s.serial_port, s.baud) as sensor:
-        sensor.wait_for_frame(0, timeout=SENSOR_CHECK_TIMEOUT)
+        check_resolution(sensor.wait_for_frame(0, timeout=SENSOR_CHECK_TIMEOUT), s.resolution,
+                         s.serial_port)
 
 
 def _confirmation_text(scenario: Scenario, planner: str, out_dir: Path) -> str:

@@ -7,7 +7,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, LeafSystem, OutputPort, State
 
 from lrnbv_drake.core.sensor import ToFFrame
-from lrnbv_drake.drivers.tof_serial import ToFSerialReader
+from lrnbv_drake.drivers.tof_serial import ToFSerialReader, check_resolution
 
 
 class ToFSerialReceiver(LeafSystem):
@@ -24,7 +24,9 @@ class ToFSerialReceiver(LeafSystem):
     already parsed, so no output or event ever waits on the serial port. Until a frame arrives
     (and while the board is silent) the state keeps the previous frame, at first an empty one
     with sequence 0; consumers skip sequence 0 and repeated sequences, as with the simulator.
-    Run the diagram in real time (`Simulator.set_target_realtime_rate(1.0)`).
+    A frame of another resolution raises SensorError from the update (`check_resolution`):
+    the rest of the diagram assumes `resolution`. Run the diagram in real time
+    (`Simulator.set_target_realtime_rate(1.0)`).
     """
 
     def __init__(
@@ -34,10 +36,12 @@ class ToFSerialReceiver(LeafSystem):
         Args:
             driver: a started driver (the system does not start or close it).
             period: polling period, seconds; the board's frame period or shorter.
-            resolution: zones per side of the empty frame output before the first frame.
+            resolution: zones per side of every frame (the empty one output before the
+                first frame too).
         """
         super().__init__()
         self._driver = driver
+        self._resolution = resolution
         empty = ToFFrame.empty(resolution)
         self._frame_index = self.DeclareAbstractState(AbstractValue.Make(empty))
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._Poll)
@@ -49,4 +53,5 @@ class ToFSerialReceiver(LeafSystem):
     def _Poll(self, context: Context, state: State) -> None:
         frame = self._driver.latest()
         if frame is not None:
+            check_resolution(frame, self._resolution, self._driver.port)
             state.get_mutable_abstract_state(self._frame_index).set_value(frame)
