@@ -225,7 +225,10 @@ class OrientedBox:
         z_overlap -= max(self.center[2] - self.dims[2] / 2, other.center[2] - other.dims[2] / 2)
         inter = 0.0
         if z_overlap > 0:
-            inter = shapely.intersection(self.footprint(), other.footprint()).area * z_overlap
+            # Snapped to a 1e-12 m grid: with nearly coincident edges GEOS can return a point
+            # (area 0) for two overlapping rectangles.
+            inter = shapely.intersection(self.footprint(), other.footprint(),
+                                         grid_size=1e-12).area * z_overlap
         union = self.volume + other.volume - inter
         return inter / union if union > 0 else 0.0
 
