@@ -20,6 +20,7 @@ import pytest
 from lrnbv_drake.cli.benchmark import add_benchmark_command, config_from_args, run_benchmark
 from lrnbv_drake.core import objects
 from lrnbv_drake.core.metrics import BoxMetrics, EpisodeMetrics, coverage_auc, useless_poses
+from lrnbv_drake.core.stats import compare_planners
 from lrnbv_drake.experiments.campaign.figures import (
     FIG3_PANELS,
     plot_campaign,
@@ -296,6 +297,24 @@ def test_figures_are_drawn(synthetic_campaign):
                                   config.out_dir / "again_curves.png")
     median = curves.axes[0].get_lines()[0].get_ydata()
     assert len(median) == 9 and median[6:] == pytest.approx([0.8] * 3) and median[5] < 0.8
+
+
+def test_an_accuracy_never_reached_ranks_the_same_for_every_planner():
+    """Short LR-NBV episodes and HEU's 13 poses that all never reach 5 mm: one value for
+    "never" (the pose cap + 1), so the U test finds no difference; with each episode's own
+    length + 1 it found p = 0.008."""
+    def row(planner, trial, n_poses, poses_to):
+        return episode_row({
+            "campaign": {"planner": planner, "object": "gripper", "trial": trial, "seed": trial,
+                         "object_pose": [0.5, 0, 0], "status": "ok", "error": ""},
+            "n_poses": n_poses, "scenario": "max_poses: 20\n",
+            "metrics": {"n_poses": n_poses, "poses_to_5mm": poses_to, "poses_to_10mm": 4}})
+    rows = ([row("lrnbv", t, n, None) for t, n in enumerate((5, 8, 7, 9, 6))]
+            + [row("heu", t, 13, None) for t in range(5)])
+    assert {r["poses_to_5mm"] for r in rows} == {21.0}
+    assert [r["poses_to_10mm"] for r in rows] == [4.0] * 10
+    (comparison,) = compare_planners(rows, ["poses_to_5mm"], "lrnbv", ["heu"], ["gripper"])
+    assert not comparison.test.significant
 
 
 def test_figures_say_na_without_values(tmp_path):

@@ -29,6 +29,10 @@ def test_lrnbv_on_the_horizontal_box_ends_when_the_box_holds_still_in_few_poses(
     assert report["estimated_box"]["shape"] == "box"
     assert report["metrics"]["truth_in_interval"] == [True, True, True]
     assert 1 <= report["metrics"]["poses_to_5mm"] <= report["n_poses"]
+    # Poses to accuracy refits each prefix as the report fits the whole: its last row is the
+    # reported box's error.
+    assert (report["metrics"]["dim_errors_after_each_pose_mm"][-1]
+            == pytest.approx(report["metrics"]["dim_errors_mm"], abs=0.01))
     assert report["n_poses"] < Scenario().max_poses
     # The first frame is the initial acquisition; every later pose came from a plan.
     assert report["poses"][0]["info"] == {}

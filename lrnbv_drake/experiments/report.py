@@ -56,35 +56,31 @@ def _found_box(extraction) -> OrientedBox | None:
     return extraction.oriented_box if extraction is not None and extraction.found else None
 
 
-def estimate_box(scenario: Scenario, episode_log: EpisodeLog
+def estimate_box(scenario: Scenario, episode_log: EpisodeLog, interval: bool = True
                  ) -> tuple[OrientedBox | None, BoxFit | None]:
     """The episode's box as `extraction.estimator` says: the sensor-model fit to every reading
-    (with its interval), started from the final cell box; or that cell box itself."""
+    (with its interval unless not `interval`), started from the final cell box; or that cell
+    box itself."""
     cells = _found_box(_final_extraction(episode_log))
     estimator = box_estimator(scenario)
     if cells is None or estimator is None:
         return cells, None
     for a in episode_log.acquisitions:
         estimator.add(a.frame, a.X_WS)
-    fit = estimator.estimate(cells)
+    fit = estimator.estimate(cells, interval=interval)
     return (fit.box if fit is not None else cells), fit
 
 
 def errors_after_each_pose(scenario: Scenario, episode_log: EpisodeLog,
                            true: OrientedBox) -> np.ndarray:
-    """(n_poses, 3) estimate - truth of the dimensions after each pose: the estimator re-run
-    on each prefix of the episode, warm-started pose to pose; NaN before an object is found."""
-    estimator = box_estimator(scenario)
+    """(n_poses, 3) estimate - truth of the dimensions after each pose: `estimate_box` on each
+    prefix of the episode, the box it would have reported had it stopped there (so the last
+    row is the reported box's error); NaN before an object is found."""
     errors = np.full((len(episode_log.acquisitions), 3), np.nan)
-    for i, a in enumerate(episode_log.acquisitions):
-        cells = _found_box(episode_log.extractions[i] if i < len(episode_log.extractions)
-                           else None)
-        if estimator is None:
-            box = cells
-        else:
-            estimator.add(a.frame, a.X_WS)
-            fit = estimator.estimate(cells, interval=False)
-            box = fit.box if fit is not None else None
+    for i in range(len(errors)):
+        prefix = EpisodeLog(acquisitions=episode_log.acquisitions[:i + 1],
+                            extractions=episode_log.extractions[:i + 1])
+        box, _ = estimate_box(scenario, prefix, interval=False)
         if box is not None:
             errors[i] = box.dims - true.dims
     return errors
