@@ -181,6 +181,30 @@ def test_a_merging_model_predicts_the_signal_weighted_depth_of_a_zone():
     assert straddling.any() and np.all(depth[straddling] > nearest[straddling] + 1e-3)
 
 
+def test_a_strongest_model_without_merging_predicts_the_surface_of_most_signal():
+    """Strongest order, merge_mm 0 (a rule `lrnbv sensor characterize` can fit): each zone
+    reads the signal-weighted depth of whichever of the box's top (0.4 m) and the table
+    (0.5 m) returns more signal, as the device does, not the nearest cluster holding
+    min_share."""
+    model = SensorModelParams()
+    X_WS = look_at(np.array([0.0, 0.0, 0.5]), np.zeros(3))
+    frame = ToFFrame(np.full((8, 8), 1), np.full((8, 8), 5), np.zeros((8, 8)))
+    rays = zone_rays(frame, X_WS, model)
+    x = np.array([0.0, 0.0, 0.0, 0.2, 0.2, 0.1])
+    strongest = BoxFitParams(behaviour=DeviceBehaviour(target_order="strongest"))
+    depth = predicted_depths(rays, x, 0.0, model, strongest)
+    samples = _reference_depths(rays, x, 0.0, 0.0)
+    expected = []
+    for zone in samples:
+        surfaces = [zone[zone < 0.45], zone[zone >= 0.45]]
+        signal = [np.sum(1 / s**2) for s in surfaces]
+        s = surfaces[int(np.argmax(signal))]
+        expected.append(np.sum(1 / s) / np.sum(1 / s**2))
+    np.testing.assert_allclose(depth, expected, rtol=1e-12)
+    nearest = predicted_depths(rays, x, 0.0, model)
+    assert np.any(np.abs(depth - nearest) > 0.05)  # zones where the table outshines the top
+
+
 def test_the_readings_width_is_wide_for_sides_no_view_saw_from_outside():
     """The horizontal box (length along x) from straight above only: the view's +-22.5 degrees
     end 12 cm from the centre, inside both ends, so no reading bounds the length; with all nine

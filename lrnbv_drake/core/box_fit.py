@@ -221,10 +221,11 @@ def _zone_depths(origins, directions, i, x, floor, c, s, d0, d1, table_t, depths
 def _reduce_sorted(ordered, min_count, gap_m, slope, merge_m, strongest, merged_mode, signal,
                    ones, foreign, target):
     """The model's reading of one zone from its sorted sub-ray depths: the nearest cluster
-    holding min_count (`sorted_cluster_median`) or, with `merge_m` > 0, the target the model's
-    merge rule reports (`tof_device.sorted_target`, every surface of one reflectance, so a
-    sample's signal is 1 / d^2). `signal`, `ones`, `foreign`, `target`: work buffers."""
-    if merge_m <= 0.0:
+    holding min_count (`sorted_cluster_median`) or, with `merge_m` > 0 or the strongest order,
+    the target the model's rule reports (`tof_device.sorted_target`, as the device does, every
+    surface of one reflectance, so a sample's signal is 1 / d^2). `signal`, `ones`,
+    `foreign`, `target`: work buffers."""
+    if merge_m <= 0.0 and not strongest:
         return sorted_cluster_median(ordered, min_count, gap_m, slope)
     for j in range(ordered.shape[0]):
         d = ordered[j]
@@ -317,7 +318,8 @@ def reduction_rule(model: SensorModelParams, behaviour: DeviceBehaviour | None, 
                    ) -> tuple[int, float, float, float, bool, int]:
     """The kernels' arguments for the model's reading of a zone of m sub-rays: the cluster
     rule (`cluster_rule`), then the merge distance (m), strongest order and merged depth of
-    `behaviour` (None, or merge_mm 0: the nearest cluster holding min_share)."""
+    `behaviour` (None, or merge_mm 0 with the closest order: the nearest cluster holding
+    min_share)."""
     b = behaviour or DeviceBehaviour()
     return (*cluster_rule(model, m), b.merge_mm / 1000.0, b.target_order == "strongest",
             MERGED_DEPTHS.index(b.merged_depth))

@@ -79,7 +79,8 @@ class DeviceBehaviour:
     Args:
         target_order: "closest" or "strongest": which target a zone reports.
         merge_mm: surfaces closer than this in depth merge into one target (status 9);
-            0 keeps the ideal rule (the nearest surface holding `min_share`).
+            0 with the closest order keeps the ideal rule (the nearest surface holding
+            `min_share`).
         merged_depth: where a merged target lies: "signal" (the signal-weighted mean depth),
             "nearest" or "farthest" of its surfaces.
         sharpener_bleed: share of each 4-neighbour zone's samples seen in a zone.

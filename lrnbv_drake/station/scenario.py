@@ -115,8 +115,8 @@ class SensorConfig:
     zone_directions: str = "uniform"
     # Which target a zone reports, "closest" or "strongest", and surfaces closer than
     # merge_mm in depth reported as one at a "signal"-weighted, "nearest" or "farthest" depth
-    # (0: the nearest surface holding min_share, no merging). The box estimator predicts
-    # readings with these.
+    # (0: no merging; with "closest", the nearest surface holding min_share, with "strongest"
+    # the surface of the most signal). The box estimator predicts readings with these.
     target_order: str = "closest"
     merge_mm: float = 0.0
     merged_depth: str = "signal"
