@@ -25,6 +25,7 @@ from lrnbv_drake.station.hardware_cell import (
 )
 from lrnbv_drake.station.parts import safety_limits
 from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario
+from lrnbv_drake.station.simulated_board import SimulatedToFBoard
 from lrnbv_drake.systems.tof_frame_stamper import ToFFrameStamper
 
 HOME = kinematics.HOME.copy()
@@ -215,3 +216,24 @@ def test_stamper_gives_up_on_a_sensor_that_never_sends():
     _, simulator, _ = _stamper()
     with pytest.raises(SensorTimeout, match=r"no new frame from the ToF sensor for 0\.8 s"):
         simulator.AdvanceTo(1.0)
+
+
+def test_the_dry_run_board_with_the_datasheet_device_reads_status_6_only_at_first():
+    """The datasheet device marks the first frame after ranging starts status 6 (half weight,
+    not a valid reading); the dry run's board must not make every frame that first one, or
+    the session sees no valid zone at all."""
+    scenario = load_scenario(data="device: {profile: datasheet}")
+    q = list(scenario.robot.initial_position)
+    with ToFSerialReader("loop://", scenario.sensor.baud) as driver:
+        board = SimulatedToFBoard(scenario, lambda: q, driver).start()
+        try:
+            frames = {}
+            deadline = time.monotonic() + 30.0
+            while len(frames) < 3 and time.monotonic() < deadline:
+                frame = driver.wait_for_frame(max(frames, default=0), timeout=5.0)
+                frames[frame.sequence] = frame
+        finally:
+            board.close()
+    later = [f for s, f in frames.items() if s > 1]
+    assert len(later) >= 2 and all(f.valid.sum() > 32 for f in later)
+

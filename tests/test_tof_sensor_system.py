@@ -21,6 +21,7 @@ from lrnbv_drake.core.sensor import (
     ToFFrame,
     ZoneGeometry,
 )
+from lrnbv_drake.core.tof_device import STATUS_NO_WRAP_CHECK, DeviceBehaviour
 from lrnbv_drake.systems.tof_sensor import (
     ToFSensor,
     add_tof_renderer,
@@ -47,7 +48,8 @@ def _edge_scene(edge_angle: float) -> list:
     return [*WALL_AT_05, ((2.0, 2.0, 0.1), (x_edge + 1.0, 0.0, 0.35))]
 
 
-def _make_sensor(scene: list, params: SensorModelParams, seed: int = 0):
+def _make_sensor(scene: list, params: SensorModelParams, seed: int = 0,
+                 behaviour: DeviceBehaviour | None = None):
     """The diagram, `dut` and its context."""
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=0.0)
@@ -59,12 +61,28 @@ def _make_sensor(scene: list, params: SensorModelParams, seed: int = 0):
     plant.Finalize()
     add_tof_renderer(scene_graph)
     dut = builder.AddSystem(
-        ToFSensor(plant.GetBodyFrameIdOrThrow(mount.index()), X_BS, params, seed=seed)
+        ToFSensor(plant.GetBodyFrameIdOrThrow(mount.index()), X_BS, params, seed=seed,
+                  behaviour=behaviour)
     )
     builder.Connect(scene_graph.get_query_output_port(), dut.get_geometry_query_input_port())
     diagram = builder.Build()
     context = diagram.CreateDefaultContext()
     return diagram, dut, dut.GetMyContextFromRoot(context)
+
+
+def test_a_capture_given_the_frame_before_it_is_not_the_first_after_ranging_starts() -> None:
+    """With the device's start-up statuses, the first frame reads status 6 in every zone that
+    sees the wall; a capture handed that frame (the dry run's board captures on a context that
+    never advances) reads status 5 again."""
+    _, dut, context = _make_sensor(WALL_AT_05, NOISELESS,
+                                   behaviour=DeviceBehaviour(startup_statuses=True))
+    first = dut.CaptureFrame(context, sequence=1)
+    np.testing.assert_array_equal(first.status, STATUS_NO_WRAP_CHECK)
+    np.testing.assert_array_equal(dut.CaptureFrame(context, sequence=2).status,
+                                  STATUS_NO_WRAP_CHECK)  # nothing in state: first again
+    second = dut.CaptureFrame(context, sequence=2, previous=first)
+    np.testing.assert_array_equal(second.status, STATUS_VALID)
+    np.testing.assert_array_equal(second.distance_mm, first.distance_mm)
 
 
 def test_wall_reads_its_perpendicular_distance_in_every_zone() -> None:

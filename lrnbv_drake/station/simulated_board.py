@@ -79,7 +79,7 @@ class SimulatedToFBoard:
         self._ready.set()
         started = time.monotonic()
         deadline = started
-        sequence = 0
+        sequence, frame = 0, None
         while not self._stop.wait(max(0.0, deadline - time.monotonic())):
             deadline += self._period
             if not self._driver.connected:
@@ -88,7 +88,10 @@ class SimulatedToFBoard:
             try:
                 cell.GetInputPort("ur5e.position").FixValue(context,
                                                             np.asarray(self._joints(), float))
-                frame = tof.CaptureFrame(tof.GetMyContextFromRoot(context), sequence=sequence)
+                # The context never advances: the board hands each frame the one before it,
+                # or every frame would be the first after ranging starts (status 6).
+                frame = tof.CaptureFrame(tof.GetMyContextFromRoot(context), sequence=sequence,
+                                         previous=frame)
                 stamp = round((time.monotonic() - started) * 1e6)
                 self._driver.write(encode_frame(dc.replace(frame, timestamp_us=stamp)))
             except SensorError as e:

@@ -218,7 +218,8 @@ class ToFSensor(LeafSystem):
     def get_tof_frame_output_port(self) -> OutputPort:
         return self._frame_port
 
-    def CaptureFrame(self, context: Context, sequence: int | None = None) -> ToFFrame:
+    def CaptureFrame(self, context: Context, sequence: int | None = None,
+                     previous: ToFFrame | None = None) -> ToFFrame:
         """Captures a frame from the poses in `context` (one render, as if at rest) without
         changing its state.
 
@@ -226,8 +227,10 @@ class ToFSensor(LeafSystem):
             context: this system's context.
             sequence: number to stamp and seed the noise with; by default the one after the
                 frame in state, i.e. what the next periodic capture would produce.
+            previous: the frame captured before this one (the device's start-up statuses
+                depend on it); by default the frame in state.
         """
-        return self._Reduce(context, [self._Render(context)], sequence)
+        return self._Reduce(context, [self._Render(context)], sequence, previous)
 
     def _Render(self, context: Context) -> tuple[np.ndarray, np.ndarray | None]:
         """One render: the zone depths and, for a non-ideal device, each sample's
@@ -243,8 +246,10 @@ class ToFSensor(LeafSystem):
         p_W = X_WS.multiply(p_S.reshape(-1, 3).T).T
         return depth, np.asarray(self._reflectance(p_W), float).reshape(depth.shape)
 
-    def _Reduce(self, context: Context, renders: list, sequence: int | None) -> ToFFrame:
-        previous = self._frame_port.Eval(context)
+    def _Reduce(self, context: Context, renders: list, sequence: int | None,
+                previous: ToFFrame | None = None) -> ToFFrame:
+        if previous is None:
+            previous = self._frame_port.Eval(context)
         if sequence is None:
             sequence = previous.sequence + 1
         res = self._params.geometry.resolution
