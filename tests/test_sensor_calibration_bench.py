@@ -111,6 +111,20 @@ def test_characterize_names_the_file_and_the_arrays_it_misses(recordings, tmp_pa
     assert not out.exists()
     assert main(["sensor", "characterize", "--out", str(out)]) == 2
     assert "give recordings" in capsys.readouterr().err
+    # An edge sweep is not a flat board, and a 4x4 recording is not the scenario's 8x8.
+    assert main(["sensor", "characterize", "--frames", str(recordings["edge"]),
+                 "--out", str(out)]) == 2
+    assert f"{recordings['edge']}: a recording of kind 'edge', not of a flat board" in (
+        capsys.readouterr().err)
+    four = tmp_path / "four.npz"
+    arrays = dict(np.load(recordings["target"]))
+    for key in ("distance_mm", "status", "sigma_mm"):
+        arrays[key] = arrays[key][:, :4, :4]
+    np.savez(four, **arrays)
+    assert main(["sensor", "characterize", "--target", str(recordings["target"]),
+                 "--target", str(four), "--out", str(out)]) == 2
+    assert f"{four}: the recording has 4x4 zones" in capsys.readouterr().err
+    assert not out.exists()
 
 
 def test_the_bench_is_seeded():

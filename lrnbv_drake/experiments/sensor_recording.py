@@ -188,12 +188,12 @@ def load_calibration_recording(path: str | Path, kind: str) -> dict[str, np.ndar
     return arrays
 
 
-def _row_major(arrays: dict[str, np.ndarray], geometry: ZoneGeometry
+def _row_major(path: str | Path, arrays: dict[str, np.ndarray], geometry: ZoneGeometry
                ) -> tuple[np.ndarray, np.ndarray]:
     """A recording's distances and statuses in row-major zone order, (n, res, res)."""
     res = arrays["distance_mm"].shape[-1]
     if res != geometry.resolution:
-        raise ValueError(f"the recording has {res}x{res} zones; the scenario's sensor "
+        raise ValueError(f"{path}: the recording has {res}x{res} zones; the scenario's sensor "
                          f"{geometry.resolution}x{geometry.resolution}")
     return tuple(np.array([geometry.to_row_major(a) for a in arrays[name]])
                  for name in ("distance_mm", "status"))
@@ -306,6 +306,10 @@ def _flat_parts(name: str, distance_mm: float | None
     value where the file holds the distances, else the whole file at `distance_mm`."""
     arrays = load_recording(name)
     if "board_mm" not in arrays:
+        # A file from `lrnbv sensor record` has no kind; an edge or a target recording does,
+        # and its frames are not of a flat board.
+        if "kind" in arrays and str(arrays["kind"]) != "flat":
+            raise ValueError(f"{name}: a recording of kind '{arrays['kind']}', not of a flat board")
         return [(name, arrays, distance_mm)]
     if distance_mm is not None:
         raise ValueError(f"{name} holds its board distances (board_mm): leave --distance-mm "
@@ -344,7 +348,8 @@ def characterize_directions(files: Sequence[str], geometry: ZoneGeometry) -> Zon
     order `geometry`'s flips say."""
     parts = [load_calibration_recording(name, "target") for name in files]
     distance, status = (np.concatenate(a) for a in
-                        zip(*(_row_major(p, geometry) for p in parts), strict=True))
+                        zip(*(_row_major(name, p, geometry)
+                              for name, p in zip(files, parts, strict=True)), strict=True))
     target_deg = np.concatenate([p["target_deg"] for p in parts])
     target_mm = np.concatenate([p["target_mm"] for p in parts])
     return fit_zone_directions(target_hits(distance, status, target_mm), target_deg)
@@ -355,7 +360,8 @@ def characterize_mixed_zones(files: Sequence[str], params: SensorModelParams) ->
     `params` (its zone directions say which zones the edge crosses)."""
     parts = [load_calibration_recording(name, "edge") for name in files]
     distance, status = (np.concatenate(a) for a in
-                        zip(*(_row_major(p, params.geometry) for p in parts), strict=True))
+                        zip(*(_row_major(name, p, params.geometry)
+                              for name, p in zip(files, parts, strict=True)), strict=True))
     edge, near, far = (np.concatenate([p[key] for p in parts])
                        for key in ("edge_deg", "near_mm", "far_mm"))
     return fit_mixed_zone_rule(edge_steps(distance, status, edge, near, far), params)
