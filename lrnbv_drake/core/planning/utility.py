@@ -5,7 +5,9 @@ Gains (paper, Section "Utility Function"; docs/algorithm.md maps every symbol he
 - Rays: one per zone (optionally k x k per zone) from the sensor's zone geometry, r(t) = o + t*d
   with |d| = `max_range`, sampled at t_k spaced one map cell apart.
 - Validity V(r, t_k): the sample lies in the ROI and no occupied cell comes before it on the
-  ray; the first occupied sample (the object surface) is itself valid, later ones are not.
+  ray (found by walking the ray cell by cell, so that a ray clipping the corner of an
+  occupied cell between two samples is stopped there); the first occupied cell (the object
+  surface) is itself valid, counted once, and nothing behind it is.
 - Ge: sum over valid samples of W = the volume of the sample's cell when that cell is unknown
   (the volumetric gain of Bircher et al.: unknown volume the view would traverse).
 - Gd: sum over valid samples of 1 / (1 + rho), rho the object points within r_d of the sample.
@@ -27,7 +29,7 @@ from numba.extending import intrinsic
 from scipy import ndimage
 
 from lrnbv_drake.core.boxes import AlignedBox
-from lrnbv_drake.core.mapping import ray_box_interval
+from lrnbv_drake.core.mapping import ray_box_interval, walk_init, walk_step
 from lrnbv_drake.core.planning.config import GainParams, UtilityWeights
 from lrnbv_drake.core.sensor import ZoneGeometry
 
@@ -115,6 +117,13 @@ def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state
     nx, ny, nz = state.shape
     cell_volume = res * res * res
     d = np.empty(3)
+    dims = np.array(state.shape, dtype=np.int64)
+    zero = np.zeros(3, dtype=np.int64)
+    local = np.empty(3)
+    cell = np.empty(3, dtype=np.int64)
+    step = np.empty(3, dtype=np.int64)
+    tmax = np.empty(3)
+    tdelta = np.empty(3)
     for p in range(poses.shape[0]):
         o = poses[p, :3, 3]
         o0, o1, o2 = o[0], o[1], o[2]
@@ -134,11 +143,24 @@ def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state
             if t1 <= t0:
                 continue
             d0, d1, d2 = d[0], d[1], d[2]
+            # Where the ray first enters an occupied cell, walked cell by cell (the samples
+            # below are a cell apart and would step past the corner of one).
+            for a in range(3):
+                local[a] = o[a] - origin[a]
+            walk_init(local, d, t0, zero, dims, res, cell, step, tmax, tdelta)
+            t_hit = np.inf
+            t_cell = t0
+            while t_cell >= 0.0 and t_cell <= t1:
+                if state[cell[0], cell[1], cell[2]] == OCCUPIED:
+                    t_hit = t_cell
+                    break
+                t_cell = walk_step(cell, step, tmax, tdelta, dims)
             # Samples one cell apart (t in metres: the paper's t is t / max_range), from where
             # the ray enters the ROI. Scalars, not `o + t * d`: the same arithmetic without
             # a temporary array per sample.
             t = t0 + 0.5 * res
-            while t < t1:
+            seen = False  # the surface cell, counted once
+            while t < min(t1, t_hit):
                 i = int(np.floor(((o0 + t * d0) - origin[0]) / res))
                 j = int(np.floor(((o1 + t * d1) - origin[1]) / res))
                 k = int(np.floor(((o2 + t * d2) - origin[2]) / res))
@@ -149,8 +171,11 @@ def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state
                 if s == UNKNOWN:
                     ge += cell_volume
                 gd += 1.0 / (1.0 + density[i, j, k])
-                if s == OCCUPIED:  # the surface is seen; nothing behind it is
+                if s == OCCUPIED:  # a sample rounded into the surface cell
+                    seen = True
                     break
+            if t_hit < t1 and not seen:  # the surface is seen; nothing behind it is
+                gd += 1.0 / (1.0 + density[cell[0], cell[1], cell[2]])
         out_ge[p] = ge
         out_gd[p] = gd
 
