@@ -162,15 +162,15 @@ class LrNbvPolicy(ViewpointPolicy):
         return tree, utilities, tree.best_branch(utilities)
 
     def _cache_off_branch(self, tree: ViewTree, utilities: np.ndarray, branch: list[int],
-                          cached: set[int]) -> None:
+                          cached: dict[int, _Cached]) -> None:
         """Lines 8 and 12: caches the tree's nodes off the best branch above tau, once each
-        (`cached` holds the indices already cached and is updated)."""
+        (`cached` maps the tree indices already cached to their entries and is updated)."""
         on_branch = set(branch)
         for i in range(1, len(tree.poses)):
             if i not in on_branch and i not in cached and \
                     utilities[i - 1] > self.params.cache_threshold:
-                self.cache.append(_Cached(tree.poses[i], tree.gains[i], tree.configs[i]))
-                cached.add(i)
+                cached[i] = _Cached(tree.poses[i], tree.gains[i], tree.configs[i])
+                self.cache.append(cached[i])
 
     def _update_cache(self, snapshot: PlanningSnapshot) -> float:
         """Lines 19-21: re-evaluate the cache, drop the nodes no longer above tau, keep the best
@@ -180,7 +180,8 @@ class LrNbvPolicy(ViewpointPolicy):
             poses = np.array([c.X_WS for c in self.cache])
             gains = evaluate_gains(poses, snapshot, self.rays, self.visited, self.params.gains)
             self.utility.observe(gains)
-            keep = cache_capacity(self.params.num_cached_nodes, self.iteration,
+            # This update closes the iteration before this call (`accepted` has counted it).
+            keep = cache_capacity(self.params.num_cached_nodes, max(self.iteration - 1, 0),
                                   self.params.num_iterations)
             utilities = self._utilities(gains, [c.q for c in self.cache])
             order = np.argsort(-utilities, kind="stable")[:keep]
@@ -222,7 +223,7 @@ class LrNbvPolicy(ViewpointPolicy):
         n = self.params.samples_per_iteration
         tree, utilities, branch = self._grow(observation.X_WS, n, self._random_positions,
                                              snapshot, roi, reach)
-        cached_nodes: set[int] = set()
+        cached_nodes: dict[int, _Cached] = {}
         self._cache_off_branch(tree, utilities, branch, cached_nodes)
         best, u_best = best_node(utilities, branch)
         used_cached_tree = False
@@ -238,6 +239,10 @@ class LrNbvPolicy(ViewpointPolicy):
             self._cache_off_branch(tree, utilities, branch, cached_nodes)
             used_cached_tree = tree.size > size
             best, u_best = best_node(utilities, branch)
+            # The grown tree's best branch may run through nodes line 8 cached (x* among
+            # them): on the branch, they are not off it.
+            on_branch = {id(cached_nodes[i]) for i in branch if i in cached_nodes}
+            self.cache = [c for c in self.cache if id(c) not in on_branch]
         expansion_s = time.perf_counter() - started
         self.last_tree = tree
         final_cached = cached_utilities() if cached_before else None
