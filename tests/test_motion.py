@@ -29,6 +29,18 @@ def test_trapezoid_durations_worked_by_hand(dq, duration):
     assert traj.value(traj.end_time())[0, 0] == pytest.approx(dq)
 
 
+def test_a_move_just_past_the_triangle_keeps_increasing_breaks():
+    """vmax = amax = 1 and 1 rad is exactly the triangle (2 s); a move one ulp longer has a
+    ~1e-16 s cruise, which vanished into a later start time and made two equal breaks."""
+    for dq in (1.0, np.nextafter(1.0, 2.0), 1.0 + 1e-12):
+        traj = trapezoidal_trajectory(np.array([[0.0], [dq]]), np.array([1.0]),
+                                      np.array([1.0]), start_time=123.4)
+        assert traj.end_time() - 123.4 == pytest.approx(2.0)
+        assert traj.value(traj.end_time())[0, 0] == pytest.approx(dq)
+        _, _, v, _ = _sample(traj)
+        assert np.all(np.abs(v) <= 1.0 + 1e-9)
+
+
 def test_trapezoid_respects_limits_and_synchronises():
     rng = np.random.default_rng(0)
     waypoints = rng.uniform(-2, 2, size=(3, 6))

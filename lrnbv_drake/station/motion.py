@@ -56,7 +56,9 @@ def trapezoidal_trajectory(waypoints: np.ndarray, max_velocity: np.ndarray,
         s_vel = np.min(max_velocity[moving] / np.abs(dq[moving]))
         s_acc = np.min(max_acceleration[moving] / np.abs(dq[moving]))
         t_acc = s_vel / s_acc
-        if s_vel * t_acc >= 1.0:  # triangle: the peak speed is never reached
+        # Triangle: the peak speed is never reached. Within 1e-9 of it the cruise would last
+        # ~1e-16 s, a break that does not increase once added to a later start time.
+        if s_vel * t_acc >= 1.0 - 1e-9:
             t_acc = np.sqrt(1.0 / s_acc)
             s_peak = s_acc * t_acc
             knots = [(t_acc, 0.5, s_peak), (2 * t_acc, 1.0, 0.0)]
