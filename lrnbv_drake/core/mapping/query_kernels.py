@@ -62,7 +62,7 @@ def ray_box_interval(o, u, t0, t1, bmin, bmax):
 
 
 @numba.njit(cache=True)
-def walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta):
+def _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta):
     """Grid DDA state at ray parameter t0 (a point inside the grid box)."""
     for a in range(3):
         p = o[a] + u[a] * t0
@@ -83,7 +83,7 @@ def walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta):
 
 
 @numba.njit(cache=True)
-def walk_step(cell, step, tmax, tdelta, dims):
+def _walk_step(cell, step, tmax, tdelta, dims):
     """Advances to the next cell; returns the parameter where it is entered, or -1 on leaving
     the grid."""
     if tmax[0] < tmax[1]:
@@ -119,14 +119,14 @@ def first_occupied_kernel(grid, lo, res, thres, origins, dirs, max_range, out_t,
         t0, t1 = ray_box_interval(o, u, 0.0, max_range, gmin, gmax)
         if t0 > t1:
             continue
-        walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta)
+        _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta)
         t = t0
         while True:
             if grid[cell[0], cell[1], cell[2]] >= thres:
                 out_t[r] = t
                 out_cell[r, 0], out_cell[r, 1], out_cell[r, 2] = cell[0], cell[1], cell[2]
                 break
-            t = walk_step(cell, step, tmax, tdelta, dims)
+            t = _walk_step(cell, step, tmax, tdelta, dims)
             if t < 0 or t > t1:
                 break
 
@@ -156,7 +156,7 @@ def unknown_kernel(grid, lo, res, thres, origins, ends, bmin, bmax, stop_at_occu
         b0, b1 = ray_box_interval(o, u, 0.0, length, bmin, bmax)
         if t0 > t1 or b0 > b1:
             continue
-        walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta)
+        _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta)
         t = t0
         while t <= t1:
             value = grid[cell[0], cell[1], cell[2]]
@@ -168,6 +168,6 @@ def unknown_kernel(grid, lo, res, thres, origins, ends, bmin, bmax, stop_at_occu
                 if overlap > 0:
                     out_n[r] += 1
                     out_len[r] += overlap
-            t = walk_step(cell, step, tmax, tdelta, dims)
+            t = _walk_step(cell, step, tmax, tdelta, dims)
             if t < 0:
                 break
