@@ -61,54 +61,59 @@ def ray_box_interval(o, u, t0, t1, bmin, bmax):
     return t0, t1
 
 
-@numba.njit(cache=True)
-def _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta):
-    """Grid DDA state at ray parameter t0 (a point inside the grid box)."""
-    for a in range(3):
-        p = o[a] + u[a] * t0
-        i = np.int64(math.floor(p / res)) - lo[a]
-        cell[a] = min(max(i, 0), dims[a] - 1)
-        if u[a] > 0:
-            step[a] = 1
-            tmax[a] = ((lo[a] + cell[a] + 1) * res - o[a]) / u[a]
-            tdelta[a] = res / u[a]
-        elif u[a] < 0:
-            step[a] = -1
-            tmax[a] = ((lo[a] + cell[a]) * res - o[a]) / u[a]
-            tdelta[a] = -res / u[a]
-        else:
-            step[a] = 0
-            tmax[a] = np.inf
-            tdelta[a] = np.inf
+@numba.njit(cache=True, inline="always")
+def _axis_start(o, u, t0, lo, n, res):
+    """One axis of `walk_start`: (cell, step, parameter of the next boundary, per cell)."""
+    cell = min(max(np.int64(math.floor((o + u * t0) / res)) - lo, 0), n - 1)
+    if u > 0:
+        return cell, 1, ((lo + cell + 1) * res - o) / u, res / u
+    if u < 0:
+        return cell, -1, ((lo + cell) * res - o) / u, -res / u
+    return cell, 0, np.inf, np.inf
 
 
-@numba.njit(cache=True)
-def _walk_step(cell, step, tmax, tdelta, dims):
-    """Advances to the next cell; returns the parameter where it is entered, or -1 on leaving
-    the grid."""
-    if tmax[0] < tmax[1]:
-        a = 0 if tmax[0] < tmax[2] else 2
+@numba.njit(cache=True, inline="always")
+def walk_start(o, u, t0, lo, dims, res):
+    """Grid DDA state at ray parameter t0 (a point inside the grid box) of the ray o + t u (u a
+    unit vector; the grid's cell (0, 0, 0) is the world's cell `lo`): (cell, step, next,
+    per_cell), each a 3-tuple. Tuples, not arrays: numba keeps them in registers, which made
+    the planner's gain kernel 5x faster than array state."""
+    i, si, ti, di = _axis_start(o[0], u[0], t0, lo[0], dims[0], res)
+    j, sj, tj, dj = _axis_start(o[1], u[1], t0, lo[1], dims[1], res)
+    k, sk, tk, dk = _axis_start(o[2], u[2], t0, lo[2], dims[2], res)
+    return (i, j, k), (si, sj, sk), (ti, tj, tk), (di, dj, dk)
+
+
+@numba.njit(cache=True, inline="always")
+def walk_step(cell, step, next_t, per_cell, dims):
+    """The next cell of the walk: (cell, next, t), t the parameter where it is entered, or -1
+    on leaving the grid."""
+    if next_t[0] < next_t[1]:
+        a = 0 if next_t[0] < next_t[2] else 2
     else:
-        a = 1 if tmax[1] < tmax[2] else 2
-    t = tmax[a]
-    cell[a] += step[a]
+        a = 1 if next_t[1] < next_t[2] else 2
+    t = next_t[a]
+    if a == 0:
+        cell = (cell[0] + step[0], cell[1], cell[2])
+        next_t = (next_t[0] + per_cell[0], next_t[1], next_t[2])
+    elif a == 1:
+        cell = (cell[0], cell[1] + step[1], cell[2])
+        next_t = (next_t[0], next_t[1] + per_cell[1], next_t[2])
+    else:
+        cell = (cell[0], cell[1], cell[2] + step[2])
+        next_t = (next_t[0], next_t[1], next_t[2] + per_cell[2])
     if cell[a] < 0 or cell[a] >= dims[a]:
-        return -1.0
-    tmax[a] += tdelta[a]
-    return t
+        return cell, next_t, -1.0
+    return cell, next_t, t
 
 
 @numba.njit(cache=True)
 def first_occupied_kernel(grid, lo, res, thres, origins, dirs, max_range, out_t, out_cell):
     """`OccupancyMap.first_occupied` on the raw grid, into out_t and out_cell."""
-    dims = np.array(grid.shape, dtype=np.int64)
+    dims = grid.shape
     gmin = lo * res
-    gmax = (lo + dims) * res
+    gmax = (lo + np.array(dims)) * res
     u = np.empty(3)
-    cell = np.empty(3, dtype=np.int64)
-    step = np.empty(3, dtype=np.int64)
-    tmax = np.empty(3)
-    tdelta = np.empty(3)
     for r in range(origins.shape[0]):
         o = origins[r]
         norm = math.sqrt(dirs[r, 0] ** 2 + dirs[r, 1] ** 2 + dirs[r, 2] ** 2)
@@ -119,14 +124,14 @@ def first_occupied_kernel(grid, lo, res, thres, origins, dirs, max_range, out_t,
         t0, t1 = ray_box_interval(o, u, 0.0, max_range, gmin, gmax)
         if t0 > t1:
             continue
-        _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta)
+        cell, step, next_t, per_cell = walk_start(o, u, t0, lo, dims, res)
         t = t0
         while True:
             if grid[cell[0], cell[1], cell[2]] >= thres:
                 out_t[r] = t
                 out_cell[r, 0], out_cell[r, 1], out_cell[r, 2] = cell[0], cell[1], cell[2]
                 break
-            t = _walk_step(cell, step, tmax, tdelta, dims)
+            cell, next_t, t = walk_step(cell, step, next_t, per_cell, dims)
             if t < 0 or t > t1:
                 break
 
@@ -135,14 +140,10 @@ def first_occupied_kernel(grid, lo, res, thres, origins, dirs, max_range, out_t,
 def unknown_kernel(grid, lo, res, thres, origins, ends, bmin, bmax, stop_at_occupied,
                    out_n, out_len):
     """`OccupancyMap.unknown_along_segments` on the raw grid, added into out_n and out_len."""
-    dims = np.array(grid.shape, dtype=np.int64)
+    dims = grid.shape
     gmin = lo * res
-    gmax = (lo + dims) * res
+    gmax = (lo + np.array(dims)) * res
     u = np.empty(3)
-    cell = np.empty(3, dtype=np.int64)
-    step = np.empty(3, dtype=np.int64)
-    tmax = np.empty(3)
-    tdelta = np.empty(3)
     for r in range(origins.shape[0]):
         o = origins[r]
         for a in range(3):
@@ -156,18 +157,18 @@ def unknown_kernel(grid, lo, res, thres, origins, ends, bmin, bmax, stop_at_occu
         b0, b1 = ray_box_interval(o, u, 0.0, length, bmin, bmax)
         if t0 > t1 or b0 > b1:
             continue
-        _walk_init(o, u, t0, lo, dims, res, cell, step, tmax, tdelta)
+        cell, step, next_t, per_cell = walk_start(o, u, t0, lo, dims, res)
         t = t0
         while t <= t1:
             value = grid[cell[0], cell[1], cell[2]]
             if stop_at_occupied and value >= thres:
                 break
-            t_next = min(tmax[0], tmax[1], tmax[2])
+            t_next = min(next_t[0], next_t[1], next_t[2])
             if value != value:
                 overlap = min(t_next, t1, b1) - max(t, b0)
                 if overlap > 0:
                     out_n[r] += 1
                     out_len[r] += overlap
-            t = _walk_step(cell, step, tmax, tdelta, dims)
+            cell, next_t, t = walk_step(cell, step, next_t, per_cell, dims)
             if t < 0:
                 break

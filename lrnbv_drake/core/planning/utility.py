@@ -29,7 +29,7 @@ from numba.extending import intrinsic
 from scipy import ndimage
 
 from lrnbv_drake.core.boxes import AlignedBox
-from lrnbv_drake.core.mapping import ray_box_interval
+from lrnbv_drake.core.mapping import ray_box_interval, walk_start, walk_step
 from lrnbv_drake.core.planning.config import GainParams, UtilityWeights
 from lrnbv_drake.core.sensor import ZoneGeometry
 
@@ -111,46 +111,18 @@ def _fma(typingctx, a, b, c):
     return types.float64(types.float64, types.float64, types.float64), codegen
 
 
-@numba.njit(cache=True, inline="always")
-def _axis_walk(p, u, cell, res):
-    """One axis of the grid walk from the point p (grid frame) inside `cell`: (step, parameter
-    of the next boundary, parameter per cell), as the map's walk (`query_kernels._walk_init`)
-    sets them."""
-    if u > 0:
-        return 1, ((cell + 1) * res - p) / u, res / u
-    if u < 0:
-        return -1, (cell * res - p) / u, -res / u
-    return 0, np.inf, np.inf
-
-
 @numba.njit(cache=True)
-def _first_occupied(p0, p1, p2, u0, u1, u2, t0, t1, res, state, hit):
+def _first_occupied(p, u, t0, t1, res, state, hit):
     """The parameter in [t0, t1] where the ray p + t u (grid frame, u a unit vector) first
     enters an occupied cell of `state`, its cell into `hit`; inf if none."""
-    nx, ny, nz = state.shape
-    i = min(max(int(np.floor((p0 + u0 * t0) / res)), 0), nx - 1)
-    j = min(max(int(np.floor((p1 + u1 * t0) / res)), 0), ny - 1)
-    k = min(max(int(np.floor((p2 + u2 * t0) / res)), 0), nz - 1)
-    si, ti, di = _axis_walk(p0, u0, i, res)
-    sj, tj, dj = _axis_walk(p1, u1, j, res)
-    sk, tk, dk = _axis_walk(p2, u2, k, res)
+    dims = state.shape
+    cell, step, next_t, per_cell = walk_start(p, u, t0, (0, 0, 0), dims, res)
     t = t0
-    while t <= t1:
-        if state[i, j, k] == OCCUPIED:
-            hit[0], hit[1], hit[2] = i, j, k
+    while t >= 0.0 and t <= t1:
+        if state[cell[0], cell[1], cell[2]] == OCCUPIED:
+            hit[0], hit[1], hit[2] = cell
             return t
-        if ti < tj and ti < tk:
-            t, i, ti = ti, i + si, ti + di
-            if i < 0 or i >= nx:
-                break
-        elif tj < tk:
-            t, j, tj = tj, j + sj, tj + dj
-            if j < 0 or j >= ny:
-                break
-        else:
-            t, k, tk = tk, k + sk, tk + dk
-            if k < 0 or k >= nz:
-                break
+        cell, next_t, t = walk_step(cell, step, next_t, per_cell, dims)
     return np.inf
 
 
@@ -181,11 +153,9 @@ def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state
                 continue
             d0, d1, d2 = d[0], d[1], d[2]
             # Where the ray first enters an occupied cell, walked cell by cell (the samples
-            # below are a cell apart and would step past the corner of one). The map's walk
-            # (`query_kernels`) keeps its state in arrays; on scalars, as here, numba keeps
-            # it in registers, 5x faster in this kernel, with the same arithmetic.
-            t_hit = _first_occupied(o0 - origin[0], o1 - origin[1], o2 - origin[2],
-                                    d0, d1, d2, t0, t1, res, state, hit)
+            # below are a cell apart and would step past the corner of one).
+            t_hit = _first_occupied((o0 - origin[0], o1 - origin[1], o2 - origin[2]),
+                                    (d0, d1, d2), t0, t1, res, state, hit)
             # Samples one cell apart (t in metres: the paper's t is t / max_range), from where
             # the ray enters the ROI. Scalars, not `o + t * d`: the same arithmetic without
             # a temporary array per sample.
