@@ -55,8 +55,22 @@ def test_ties_go_to_the_cheaper_then_the_smaller_and_no_costs_mean_the_smallest(
     dims = np.array([0.2, 0.2, 0.2])
     assert choose_container(dims, NONE, 0.0, [a, b, c]).container == c  # the cheapest
     assert choose_container(dims, NONE, 0.0, [b, a]).container == a  # same cost: smaller
-    free = [Container("x", (0.5, 0.5, 0.5)), Container("y", (0.3, 0.3, 0.3), 5.0)]
+    free = [Container("x", (0.5, 0.5, 0.5)), Container("y", (0.3, 0.3, 0.3))]
     assert choose_container(dims, NONE, 0.0, free).container.name == "y"  # by volume
+    partly = [Container("x", (0.5, 0.5, 0.5), 1.0), Container("y", (0.3, 0.3, 0.3))]
+    with pytest.raises(ValueError, match="1 of 2 have one"):  # prices against guesses
+        choose_container(dims, NONE, 0.0, partly)
+
+
+@pytest.mark.parametrize("dims, margin, clearance", [
+    ([0.2, np.nan, 0.1], NONE, 0.0), ([0.2, 0.1, 0.1], [0.0, -0.01, 0.0], 0.0),
+    ([0.2, 0.1, 0.1], [0.0, np.inf, 0.0], 0.0), ([0.2, 0.1, 0.1], NONE, -0.05),
+    ([0.2, 0.1, 0.1], NONE, np.nan),
+])
+def test_a_box_margin_or_clearance_that_is_not_a_size_is_refused(dims, margin, clearance):
+    # A negative clearance would put a 0.12 m tall box into a 0.10 m tall container.
+    with pytest.raises(ValueError, match="expected"):
+        choose_container(np.array(dims), np.array(margin), clearance, [FLAT, TALL, BIG])
 
 
 def test_fits_and_right_size_against_the_true_box():
@@ -78,6 +92,16 @@ def test_fits_and_right_size_against_the_true_box():
     ("containers: [{name: a, inner: [0.1, 0.2, 0.3], cost: -1}]", "'cost' must be"),
     ("containers: [{name: a, inner: [1, 1, 1]}, {name: a, inner: [1, 1, 1]}]", "new non-empty"),
     ("containers: [{name: a, inner: [1, 1, 1], colour: red}]", "expected a mapping"),
+    ("containers: [{name: a, inner: [300, 200, 100]}]", "divide by 1000"),
+    ("containers: [{name: a, inner: [.inf, 0.2, 0.1]}]", "three positive lengths"),
+    ("containers: [{name: a, inner: [true, true, true]}]", "three positive lengths"),
+    ("containers: [{name: a, inner: [0.1, 0.2, 0.3], cost: .inf}]", "'cost' must be"),
+    ("containers: [{name: a, inner: [0.1, 0.2, 0.3], cost: true}]", "'cost' must be"),
+    ("containers: [{name: a, inner: [1, 1, 1]}]\ncontainers: [{name: b, inner: [1, 1, 1]}]",
+     "'containers' is given twice"),
+    ("containers: [{name: a, inner: [1, 1, 1]}]\ncontainerz: []", "unknown keys ['containerz']"),
+    ("containers: [{name: a, inner: [1, 1, 1], cost: 1}, {name: b, inner: [1, 1, 1]}]",
+     "no 'cost' for b"),
 ])
 def test_a_bad_catalogue_is_refused_naming_the_entry(text, words):
     with pytest.raises(CatalogueError, match=r"my\.yaml") as error:

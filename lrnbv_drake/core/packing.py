@@ -5,18 +5,21 @@ The box (length, width, height) is grown, dimension by dimension, by the estimat
 clearance; a container holds it when, in one of the six axis-aligned orientations, every grown
 dimension is within the container's inner dimension. Of those that hold it, the cheapest is
 chosen, ties broken by the smaller volume and then the name; when the catalogue gives no costs
-(all or nothing: a partial price list would compare prices with guesses), the smallest by
-volume. Nothing here reads files: `load_catalogue` parses the YAML text it is given.
+(all or nothing: a partial price list would compare prices with guesses, so the loader
+refuses it), the smallest by volume. Nothing here reads files: `load_catalogue` parses the
+YAML text it is given.
 """
 
 from __future__ import annotations
 
 import dataclasses as dc
 import itertools
+import math
 from collections.abc import Sequence
 
 import numpy as np
-import yaml
+
+from lrnbv_drake.core.strict_yaml import load_yaml
 
 #: The six ways a box's (L, W, H) can be laid along a container's axes.
 ORIENTATIONS: tuple[tuple[int, int, int], ...] = tuple(itertools.permutations(range(3)))
@@ -60,19 +63,28 @@ class CatalogueError(ValueError):
     """A container catalogue that cannot be used; the message names the entry."""
 
 
+#: An inner side longer than this (metres) is a catalogue written in millimetres.
+LONGEST_CONTAINER = 5.0
+
+
+def _number(v: object) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def load_catalogue(text: str, source: str = "catalogue") -> list[Container]:
-    """Containers from YAML: `containers:` a list of {name, inner: [L, W, H] metres, cost}.
+    """Containers from YAML: `containers:` a list of {name, inner: [L, W, H] metres, cost},
+    the cost given for every container or for none.
 
     Raises:
         CatalogueError: naming `source`, the entry and what was expected.
     """
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise CatalogueError(f"{source}: not valid YAML: {e}") from e
+    data = load_yaml(text, source, CatalogueError)
     entries = data.get("containers") if isinstance(data, dict) else None
     if not isinstance(entries, list) or not entries:
         raise CatalogueError(f"{source}: expected 'containers:' with a list of containers")
+    if set(data) != {"containers"}:
+        raise CatalogueError(f"{source}: unknown keys {sorted(set(data) - {'containers'})}; "
+                             f"expected only 'containers:'")
     containers, names = [], set()
     for i, entry in enumerate(entries):
         where = f"{source}: containers[{i}]"
@@ -83,15 +95,24 @@ def load_catalogue(text: str, source: str = "catalogue") -> list[Container]:
         if not isinstance(name, str) or not name or name in names:
             raise CatalogueError(f"{where}: 'name' must be a new non-empty text, got {name!r}")
         if (not isinstance(inner, list) or len(inner) != 3
-                or not all(isinstance(v, (int, float)) and v > 0 for v in inner)):
+                or not all(_number(v) and v > 0 for v in inner)):
             raise CatalogueError(f"{where} ({name}): 'inner' must be three positive lengths "
                                  f"in metres, got {inner!r}")
-        if cost is not None and not (isinstance(cost, (int, float)) and cost >= 0):
+        if max(inner) > LONGEST_CONTAINER:
+            raise CatalogueError(f"{where} ({name}): 'inner' {inner} is longer than "
+                                 f"{LONGEST_CONTAINER:g} m; expected metres (if the catalogue "
+                                 f"is in millimetres, divide by 1000)")
+        if cost is not None and not (_number(cost) and cost >= 0):
             raise CatalogueError(f"{where} ({name}): 'cost' must be a number >= 0, got "
                                  f"{cost!r}")
         names.add(name)
         containers.append(Container(name, tuple(float(v) for v in inner),
                                     None if cost is None else float(cost)))
+    unpriced = [c.name for c in containers if c.cost is None]
+    if unpriced and len(unpriced) < len(containers):
+        raise CatalogueError(f"{source}: no 'cost' for {', '.join(unpriced)}; expected a cost "
+                             f"for every container or for none (the choice is then the "
+                             f"smallest by volume)")
     return containers
 
 
@@ -106,8 +127,12 @@ def orientation_holding(required: np.ndarray, container: Container) -> tuple[int
 
 
 def _rank(containers: Sequence[Container]) -> list[Container]:
-    if all(c.cost is not None for c in containers):
+    priced = [c.cost is not None for c in containers]
+    if all(priced):
         return sorted(containers, key=lambda c: (c.cost, c.volume, c.name))
+    if any(priced):
+        raise ValueError("expected a cost for every container or for none; "
+                         f"{sum(priced)} of {len(containers)} have one")
     return sorted(containers, key=lambda c: (c.volume, c.name))
 
 
@@ -116,9 +141,12 @@ def choose_container(dims: np.ndarray, margin: np.ndarray, clearance: float,
     """The container for a box of `dims` (L, W, H) known to within `margin` (3,), packed with
     `clearance` (see the module docstring)."""
     dims, margin = np.asarray(dims, float), np.asarray(margin, float)
-    if dims.shape != (3,) or margin.shape != (3,) or np.any(dims <= 0) or np.any(margin < 0):
-        raise ValueError(f"expected three positive dimensions and three margins >= 0, got "
-                         f"{dims} and {margin}")
+    if (dims.shape != (3,) or margin.shape != (3,) or not np.all(dims > 0)
+            or not np.all(margin >= 0) or not np.all(np.isfinite(np.r_[dims, margin]))):
+        raise ValueError(f"expected three finite positive dimensions and three finite margins "
+                         f">= 0, got {dims} and {margin}")
+    if not (math.isfinite(clearance) and clearance >= 0):
+        raise ValueError(f"expected a finite clearance >= 0, got {clearance}")
     if not catalogue:
         raise ValueError("the container catalogue is empty")
     required = dims + margin + clearance

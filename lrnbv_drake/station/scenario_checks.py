@@ -18,10 +18,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import trimesh
-import yaml
 
 from lrnbv_drake.core import objects
 from lrnbv_drake.core.sensor import ROLL_STEPS_DEG, ROLL_STEPS_TEXT
+from lrnbv_drake.core.strict_yaml import load_yaml
 from lrnbv_drake.core.tof_device import ACCURACY_LAWS, MERGED_DEPTHS, PROFILES, TARGET_ORDERS
 from lrnbv_drake.core.tof_protocol import RESOLUTIONS
 
@@ -104,6 +104,10 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("sensor.period", _above(0)),
     ("sensor.settle_frames", _at_least(0)),
     ("sensor.baud", _at_least(1)),
+    ("device.min_share", _FRACTION),
+    ("device.cluster_gap_mm", _above(0)),
+    ("device.sigma0_mm", _at_least(0)),
+    ("device.noise_k", _at_least(0)),
     ("device.profile", _one_of(*PROFILES)),
     ("device.target_order", _one_of(*TARGET_ORDERS)),
     ("device.merge_mm", _at_least(0)),
@@ -113,6 +117,8 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("device.ambient_klux", _at_least(0)),
     ("device.reported_sigma_spread", _at_least(0)),
     ("device.integration_steps", _at_least(1)),
+    ("packing.clearance", _at_least(0)),
+    ("packing.fixed_margin", _at_least(0)),
     ("mapping.resolution", _above(0)),
     ("mapping.lower", _vector(3)),
     ("mapping.upper", _vector(3)),
@@ -196,42 +202,10 @@ def check_ranges(scenario: Scenario) -> None:
 # --- YAML ------------------------------------------------------------------------------------
 
 
-_MERGE_TAG = "tag:yaml.org,2002:merge"
-
-
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, refusing a key given twice in one mapping (a plain load keeps
-    the last value given, silently)."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
-        seen: dict[Any, yaml.Mark] = {}
-        for key_node, _ in node.value:
-            if key_node.tag == _MERGE_TAG:  # `<<: *base` may repeat the base's keys
-                continue
-            key = self.construct_object(key_node, deep=deep)
-            try:
-                first = seen.setdefault(key, key_node.start_mark)
-            except TypeError:  # an unhashable key: the base class says so
-                break
-            if first is not key_node.start_mark:
-                raise yaml.constructor.ConstructorError(
-                    None, None, f"the key '{key}' is given twice (first on line "
-                    f"{first.line + 1}); expected each key once", key_node.start_mark)
-        return super().construct_mapping(node, deep=deep)
-
-
 def parse_yaml(text: str, label: str) -> Any:
     """`text` parsed as YAML, or ScenarioError naming `label` (e.g. "scenario file 'x.yaml'"),
     the line and column, and the problem; a duplicate key is an error."""
-    try:
-        return yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader: no arbitrary objects
-    except yaml.MarkedYAMLError as e:
-        mark = e.problem_mark
-        where = f", line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        context = f" {e.context}," if e.context else ""
-        raise ScenarioError(f"{label}{where}: not valid YAML:{context} {e.problem}") from e
-    except yaml.YAMLError as e:
-        raise ScenarioError(f"{label}: not valid YAML: {e}") from e
+    return load_yaml(text, label, ScenarioError)
 
 
 # --- The object in the cell ------------------------------------------------------------------
