@@ -51,11 +51,28 @@ def test_the_defaults_and_the_examples_pass():
     ("{mapping: {lower: [0, 0, 1.0]}}",
      "fields 'mapping.lower' [0.0, 0.0, 1.0] and 'mapping.upper' [1.0, 0.6, 0.9]: expected "
      "every lower coordinate below the upper one"),
+    # A negative clearance would put a 0.12 m tall box into a 0.10 m tall container.
+    ("{packing: {clearance: -0.05}}", "field 'packing.clearance': expected a number >= 0"),
+    ("{packing: {fixed_margin: .nan}}", "field 'packing.fixed_margin': expected a number >= 0"),
+    ("{device: {min_share: 5.0}}", "field 'device.min_share': expected a fraction in (0, 1]"),
+    ("{device: {sigma0_mm: -3}}", "field 'device.sigma0_mm': expected a number >= 0"),
+    # `X | None` fields: None leaves them unset, anything else must be an X.
+    ("{device: {min_share: abc}}", "field 'device.min_share': expected float, got 'abc'"),
+    ("{device: {illumination: 3}}", "field 'device.illumination': expected bool, got 3"),
 ])
 def test_values_out_of_range_name_the_field_and_the_range(text, message):
     with pytest.raises(ScenarioError) as error:
         check_ranges(load_scenario(data=text))
     assert message in str(error.value)
+
+
+def test_a_range_error_names_the_file_that_set_the_value(tmp_path):
+    file = tmp_path / "cell.yaml"
+    file.write_text("max_poses: 0\n")
+    with pytest.raises(ScenarioError, match=r"scenario file '.*cell\.yaml': field 'max_poses'"):
+        load_scenario(file)
+    with pytest.raises(ScenarioError, match=r"^scenario string: field 'max_poses'"):
+        load_scenario(data="{max_poses: 0}")
 
 
 def test_every_rule_names_a_field_of_the_scenario():

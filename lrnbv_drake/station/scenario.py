@@ -296,8 +296,10 @@ def _check_value(value: typing.Any, tp: typing.Any, path: str) -> None:
     if origin in (typing.Union, types.UnionType):
         errors = []
         for option in typing.get_args(tp):
-            if option is type(None) and value is None:
-                return
+            if option is type(None):  # `X | None`: None is fine, anything else must be an X
+                if value is None:
+                    return
+                continue
             try:
                 _check_value(value, option, path)
                 return
@@ -402,8 +404,9 @@ def load_scenario(filename: str | Path | None = None, data: str | None = None,
             continue
         try:
             check_against_schema(parsed, Scenario)
+            scenario = yaml_load_typed(schema=Scenario, data=raw_text, defaults=scenario)
+            check_ranges(scenario)  # here, so that the error names the source that set it
         except ScenarioError as e:
             raise ScenarioError(f"{label}: {e}") from e
-        scenario = yaml_load_typed(schema=Scenario, data=raw_text, defaults=scenario)
     check_ranges(scenario)
     return scenario
