@@ -8,6 +8,7 @@ nothing asserts on how long anything took."""
 from __future__ import annotations
 
 import json
+import shutil
 import time
 
 import fake_rtde
@@ -239,6 +240,57 @@ def test_an_error_after_motion_says_what_happened_and_what_is_on_disk(
     assert "1 of 2 acquisitions in acquisitions.jsonl, all of them in frames.npz" in err
     assert f"--resume {out}" in err
     assert np.load(out / "frames.npz")["q"].shape == (2, 6) and _journal_lines(out) == 1
+
+
+def test_a_report_that_fails_after_motion_is_not_called_nothing_moved(
+        scenario, q_first_pose, tmp_path, monkeypatch, capsys):
+    """Whatever fails while the report is made, the arm has moved by then: the CLI says so
+    (exit 1) and where the acquisitions are, never "nothing moved" (exit 2)."""
+    fake_rtde.install(monkeypatch, fake_rtde.FakeArm(q_first_pose))
+
+    def broken_report(*args, **kwargs):
+        raise ValueError("the catalogue changed under the session")
+    monkeypatch.setattr(session, "_report", broken_report)
+    file = tmp_path / "cell.yaml"
+    file.write_text(SCENARIO)
+    out = tmp_path / "out"
+    assert main(["hardware", "--scenario", str(file), "--out", str(out), "--planner", "heu",
+                 "--yes"]) == 1
+    err = capsys.readouterr().err
+    assert "nothing moved" not in err
+    assert "ValueError: the catalogue changed under the session" in err
+    assert "2 of 2 acquisitions in acquisitions.jsonl" in err and _journal_lines(out) == 2
+
+
+def test_a_bad_catalogue_is_refused_before_the_arm_is_reached(scenario, tmp_path, monkeypatch,
+                                                              capsys):
+    fake_rtde.install(monkeypatch, fake_rtde.FakeArm(kinematics.HOME.copy()))
+    file = tmp_path / "cell.yaml"
+    file.write_text(SCENARIO)
+    out = tmp_path / "out"
+    assert main(["hardware", "--scenario", str(file), "--out", str(out), "--planner", "heu",
+                 "--containers", str(tmp_path / "missing.yaml"), "--yes"]) == 2
+    assert "field 'packing.containers': cannot read" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_resume_takes_a_corrected_catalogue_and_refuses_a_preset(stopped, tmp_path,
+                                                                 monkeypatch, capsys):
+    """The recovery from a catalogue moved or mistyped: `--resume DIR --containers FILE`."""
+    _, out, _, _ = stopped
+    copy = tmp_path / "session"
+    shutil.copytree(out, copy)
+    recorded = json.loads((copy / SESSION_FILE).read_text())
+    recorded.pop("finished", None)  # the module's resume test may have finished it
+    (copy / SESSION_FILE).write_text(json.dumps(recorded))
+    catalogue = tmp_path / "boxes.yaml"
+    catalogue.write_text("containers: [{name: only, inner: [0.5, 0.5, 0.5]}]\n")
+    used = []
+    monkeypatch.setattr(session, "_run", lambda scenario, *args: used.append(scenario))
+    resume(copy, confirm=lambda text: True, containers=str(catalogue))
+    assert used[0].packing.containers == str(catalogue)
+    assert main(["hardware", "--resume", str(copy), "--preset", "paper"]) == 2
+    assert "drop --preset" in capsys.readouterr().err
 
 
 def test_speed_scaling_refuses_the_start(scenario, q_first_pose, tmp_path, monkeypatch):

@@ -128,6 +128,38 @@ def test_run_refuses_a_folder_holding_results(kind, tmp_path, capsys):
         assert (tmp_path / MARKERS[kind][0]).read_text() == "{}"
 
 
+@pytest.mark.parametrize("command", ["run", "benchmark"])
+@pytest.mark.parametrize("flags, words", [
+    (["--containers", "missing.yaml"], "field 'packing.containers': cannot read"),
+    (["--scenario-text", "{sensor: {zone_directions: missing.csv}}"],
+     "field 'sensor.zone_directions': cannot read"),
+])
+def test_a_file_the_episode_reads_late_is_checked_before_anything_runs(
+        command, flags, words, tmp_path, capsys):
+    """A catalogue is read when the report is made, after every pose: a missing one is
+    refused first, and an earlier episode that --overwrite would replace is left as it was."""
+    if command == "benchmark" and flags[0] == "--scenario-text":
+        flags = ["--scenario", str(tmp_path / "s.yaml")]
+        (tmp_path / "s.yaml").write_text("sensor: {zone_directions: missing.csv}\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    earlier = [name for name in MARKERS["run"]]
+    for name in earlier:
+        (out / name).write_text("earlier")
+    extra = ["--overwrite"] if command == "run" else ["--objects", "flange"]
+    assert main([command, *flags, *extra, "--out", str(out)]) == 2
+    assert words in capsys.readouterr().err
+    assert all((out / name).read_text() == "earlier" for name in earlier)
+
+
+def test_a_report_page_alone_marks_an_earlier_run(tmp_path, capsys):
+    """--overwrite removes every file an episode writes: a report.html left beside new
+    results would describe another episode."""
+    (tmp_path / "report.html").write_text("earlier")
+    assert main(["run", "--out", str(tmp_path)]) == 2
+    assert "(report.html)" in capsys.readouterr().err
+
+
 def test_benchmark_refuses_a_run_or_session_folder(tmp_path, capsys):
     (tmp_path / "report.json").write_text("{}")
     assert main(["benchmark", "--objects", "flange", "--out", str(tmp_path)]) == 2

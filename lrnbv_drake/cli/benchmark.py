@@ -29,6 +29,7 @@ from lrnbv_drake.experiments.campaign.plan import (
 )
 from lrnbv_drake.experiments.campaign.run import CampaignInterrupted, run_campaign
 from lrnbv_drake.experiments.episode import PLANNERS
+from lrnbv_drake.station.parts import check_scenario_files
 from lrnbv_drake.station.scenario import ScenarioError, load_scenario, override, preset
 from lrnbv_drake.station.scenario_checks import check_placement
 
@@ -96,13 +97,13 @@ def add_benchmark_command(subparsers: argparse._SubParsersAction) -> argparse.Ar
                              "own (default: the scenario's, 0)")
     parser.add_argument("--random-placement", action="store_true",
                         help="a random object x, y, yaw per trial (the same for every planner)")
-    parser.add_argument("--x-range", type=_interval, default=default.x, metavar="MIN,MAX",
+    parser.add_argument("--x-range", type=_interval, metavar="MIN,MAX",
                         help=f"random placement x, m (default {default.x[0]},{default.x[1]})")
-    parser.add_argument("--y-range", type=_interval, default=default.y, metavar="MIN,MAX",
+    parser.add_argument("--y-range", type=_interval, metavar="MIN,MAX",
                         help=f"random placement y, m (default {default.y[0]},{default.y[1]})")
-    parser.add_argument("--yaw-range", type=_interval, default=default.yaw_deg,
-                        metavar="MIN,MAX", help="random placement yaw, degrees (default "
-                                                f"{default.yaw_deg[0]:g},{default.yaw_deg[1]:g})")
+    parser.add_argument("--yaw-range", type=_interval, metavar="MIN,MAX",
+                        help=f"random placement yaw, degrees (default "
+                             f"{default.yaw_deg[0]:g},{default.yaw_deg[1]:g})")
     parser.add_argument("--replay", action="store_true",
                         help="write each episode's Meshcat replay.html (slower)")
     return parser
@@ -114,8 +115,17 @@ def config_from_args(args: argparse.Namespace) -> CampaignConfig:
     scenario = load_scenario(filename=args.scenario, defaults=preset(args.preset))
     if args.containers is not None:
         scenario = override(scenario, {"packing": {"containers": args.containers}})
+    check_scenario_files(scenario)
     found = load_objects(args.objects, scenario.object.scale)
-    placement = (PlacementRange(args.x_range, args.y_range, args.yaw_range)
+    ranges = {"x": args.x_range, "y": args.y_range, "yaw_deg": args.yaw_range}
+    given = [f"--{name.split('_')[0]}-range" for name, value in ranges.items()
+             if value is not None]
+    if given and not args.random_placement:
+        raise CampaignError(f"{', '.join(given)} set the random placement's ranges; add "
+                            f"--random-placement (without it every trial uses the scenario's "
+                            f"placement)")
+    placement = (PlacementRange(**{name: value for name, value in ranges.items()
+                                   if value is not None})
                  if args.random_placement else None)
     config = CampaignConfig(
         out_dir=Path(args.out), planners=tuple(args.planners), objects=found,

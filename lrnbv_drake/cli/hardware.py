@@ -71,10 +71,12 @@ def _check_args(args: argparse.Namespace) -> str | None:
         extra = [flag for flag, given in (("--out", args.out is not None),
                                           ("--scenario", args.scenario is not None),
                                           ("--scenario-text", args.scenario_text is not None),
+                                          ("--preset", args.preset is not None),
                                           ("--dry-run", args.dry_run)) if given]
         if extra:
-            return (f"--resume takes the scenario, planner and dry-run choice from the "
-                    f"session; drop {', '.join(extra)}")
+            return (f"--resume takes the scenario (but for --robot-ip, --sensor-port and "
+                    f"--containers), planner and dry-run choice from the session; drop "
+                    f"{', '.join(extra)}")
         return None
     if args.out is None:
         return "--out DIR is required (or --resume DIR)"
@@ -111,7 +113,8 @@ def run_hardware_command(args: argparse.Namespace) -> int:
     try:
         if args.resume is not None:
             result = resume(args.resume, confirm=confirm, meshcat=meshcat,
-                            robot_ip=args.robot_ip, sensor_port=args.sensor_port)
+                            robot_ip=args.robot_ip, sensor_port=args.sensor_port,
+                            containers=args.containers)
         else:
             result = run_session(scenario, args.planner, out_dir, confirm=confirm,
                                  meshcat=meshcat, dry_run=args.dry_run)

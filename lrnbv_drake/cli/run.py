@@ -12,6 +12,7 @@ from lrnbv_drake.cli.out_dir import prepare_out_dir
 from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
 from lrnbv_drake.core import objects
 from lrnbv_drake.experiments.episode import PLANNERS, make_meshcat, run_episode
+from lrnbv_drake.station.parts import check_scenario_files
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.station.scenario_checks import check_placement
 
@@ -98,6 +99,7 @@ def run_run_command(args: argparse.Namespace) -> int:
         # otherwise fill the memory, and a misplaced one end in "no object found".
         check_placement(scenario, objects.load_object_mesh(scenario.object.name,
                                                            scenario.object.scale))
+        check_scenario_files(scenario)  # before --overwrite removes an earlier run
         out_dir = prepare_out_dir(args.out, "run", args.overwrite)
     except (ValueError, FileNotFoundError) as e:
         print(f"lrnbv run: error: {e}", file=sys.stderr)

@@ -48,6 +48,7 @@ from lrnbv_drake.station.cell import Cell, make_cell
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import (
     PLANNERS,
+    check_scenario_files,
     extraction_params,
     make_policy,
     make_self_filter,
@@ -275,6 +276,7 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
     0 runs as fast as it computes.
     """
     check_placement(scenario)
+    check_scenario_files(scenario)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -285,16 +287,20 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
     run = run_loop(parts, realtime_rate=realtime_rate,
                    interrupt_hint=f"what was captured is in {out_dir}")
     wall = time.perf_counter() - started
-    report = episode_report(planner, scenario, run.log, termination=run.termination,
-                            wall_seconds=wall, sim_seconds=run.sim_seconds,
-                            map_update_seconds=parts.map_system.insert_seconds)
-    placed = parts.cell.models.placed_object
-    estimated = (None if report["estimated_box"] is None else
-                 OrientedBox(np.array(report["estimated_box"]["center"]),
-                             np.array(report["estimated_box"]["dims"]),
-                             report["estimated_box"]["yaw"]))
-    report["metrics"] = {**episode_metrics(scenario, placed, run.log, estimated).to_dict(),
-                         **accuracy_metrics(scenario, placed, run.log, report)}
+    try:
+        report = episode_report(planner, scenario, run.log, termination=run.termination,
+                                wall_seconds=wall, sim_seconds=run.sim_seconds,
+                                map_update_seconds=parts.map_system.insert_seconds)
+        placed = parts.cell.models.placed_object
+        estimated = (None if report["estimated_box"] is None else
+                     OrientedBox(np.array(report["estimated_box"]["center"]),
+                                 np.array(report["estimated_box"]["dims"]),
+                                 report["estimated_box"]["yaw"]))
+        report["metrics"] = {**episode_metrics(scenario, placed, run.log, estimated).to_dict(),
+                             **accuracy_metrics(scenario, placed, run.log, report)}
+    except BaseException:
+        save_frames(out_dir / "frames.npz", run.log.acquisitions)  # the captured data first
+        raise
     if run.fault is not None:
         report["fault"] = run.fault
     write_outputs(out_dir, run, report, meshcat, scenario)

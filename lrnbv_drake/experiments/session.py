@@ -69,7 +69,7 @@ from lrnbv_drake.experiments.report import episode_report
 from lrnbv_drake.experiments.session_monitor import JOURNAL_FILE, SessionMonitor
 from lrnbv_drake.station.hardware_cell import check_hardware_config
 from lrnbv_drake.station.motion import MotionPlanner
-from lrnbv_drake.station.parts import safety_limits
+from lrnbv_drake.station.parts import check_scenario_files, safety_limits
 from lrnbv_drake.station.scenario import Scenario, load_scenario, override
 
 _log = logging.getLogger(__name__)
@@ -278,7 +278,8 @@ def run_session(scenario: Scenario, planner: str, out_dir: str | Path, *, confir
 
 
 def resume(out_dir: str | Path, *, confirm: Confirm, meshcat: Meshcat | None = None,
-           robot_ip: str | None = None, sensor_port: str | None = None) -> SessionResult:
+           robot_ip: str | None = None, sensor_port: str | None = None,
+           containers: str | None = None) -> SessionResult:
     """Continues a recorded session from the arm's current pose.
 
     Rebuilt from the folder: the scenario and planner (`session.json`); every recorded
@@ -300,7 +301,8 @@ def resume(out_dir: str | Path, *, confirm: Confirm, meshcat: Meshcat | None = N
     Args:
         out_dir: a folder `run_session` wrote.
         confirm, meshcat: as for `run_session` (a dry-run session resumes as a dry run).
-        robot_ip, sensor_port: replace the recorded ones (e.g. a renumbered USB port).
+        robot_ip, sensor_port, containers: replace the recorded ones (e.g. a renumbered USB
+            port, a catalogue moved or corrected).
     """
     out_dir = Path(out_dir)
     path = out_dir / SESSION_FILE
@@ -317,6 +319,8 @@ def resume(out_dir: str | Path, *, confirm: Confirm, meshcat: Meshcat | None = N
         scenario = override(scenario, {"robot": {"robot_ip": robot_ip}})
     if sensor_port is not None:
         scenario = override(scenario, {"sensor": {"serial_port": sensor_port}})
+    if containers is not None:
+        scenario = override(scenario, {"packing": {"containers": containers}})
     try:
         recorded = AcquisitionJournal(out_dir / JOURNAL_FILE).load()
     except RecordingError as e:
@@ -333,6 +337,7 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
         scenario = override(scenario, {"hardware": {"robot_driver": "playback",
                                                     "sensor_driver": "simulated"}})
     check_hardware_config(scenario)
+    check_scenario_files(scenario)
     if scenario.robot.robot_ip:
         q_start = _read_robot(scenario, must_be_ready=not dry_run)
     elif recorded:  # a dry run without a robot resumes at the last recorded pose
@@ -393,9 +398,10 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
         try:
             write_outputs(out_dir, run, _report(planner, scenario, parts, run, result, dry_run),
                           meshcat, scenario)
-        except OSError as e:
+        except Exception as e:  # the arm has moved: said as such, never as "nothing moved"
             saved = False
-            problems.append(f"writing frames.npz and report.json failed: {e}")
+            problems.append(f"writing frames.npz and report.json failed: "
+                            f"{type(e).__name__}: {e}")
     finally:
         try:
             parts.cell.hardware.close()
@@ -408,6 +414,7 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
             problems.append(f"marking {SESSION_FILE} finished failed: {e}")
     if run.fault == "error" or problems:
         result.termination = _after_the_fact(result, monitors[-1].written, problems, saved)
+        result.fault = result.fault or "error"  # not done: what it left is not all on disk
     if held.pending:
         result.termination += " (Ctrl-C while saving waited until everything was on disk)"
     return result

@@ -238,6 +238,19 @@ def container_catalogue(scenario: Scenario) -> list[Container]:
         raise ScenarioError(f"field 'packing.containers': {e}") from e
 
 
+def check_scenario_files(scenario: Scenario) -> None:
+    """Reads every file the scenario names that an episode reads only at its end or while
+    it is built (the container catalogue, the zone-direction tables), so that a bad one is
+    refused before anything runs or moves, not after the data is captured.
+
+    Raises:
+        ScenarioError: naming the field.
+    """
+    container_catalogue(scenario)
+    zone_geometry(scenario)
+    device_params(scenario)
+
+
 def safety_limits(scenario: Scenario, X_W_base: np.ndarray, X_tool0_S: np.ndarray
                   ) -> SafetyLimits:
     """The command checks for this scenario's cell, whose controller `base` frame is X_W_base
