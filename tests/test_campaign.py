@@ -418,6 +418,9 @@ def test_command_line_defaults_and_errors(tmp_path, capsys):
             _parse(["--out", str(tmp_path), *bad])
     assert run_benchmark(_parse(["--out", str(tmp_path), "--objects", "nope"])) == 2
     assert "unknown object 'nope'" in capsys.readouterr().err
+    # A range without --random-placement would be ignored: refused instead.
+    assert run_benchmark(_parse(["--out", str(tmp_path), "--yaw-range", "10,20"])) == 2
+    assert "--yaw-range set the random placement's ranges" in capsys.readouterr().err
     (tmp_path / "broken.stl").write_text("not a mesh")
     assert run_benchmark(_parse(["--out", str(tmp_path), "--objects",
                                  str(tmp_path / "broken.stl")])) == 2

@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from lrnbv_drake.experiments.episode import make_meshcat, run_episode
-from lrnbv_drake.experiments.report_page import SECTIONS
+from lrnbv_drake.experiments.report_page import SECTIONS, _container_text
 from lrnbv_drake.station.scenario import Scenario
 
 
@@ -62,3 +62,14 @@ def test_the_replay_shows_both_boxes_and_the_poses(tmp_path):
     for pose in report["poses"]:
         assert meshcat.HasPath(f"/results/sensor poses (blue)/{pose['index']:03d}")
     assert not meshcat.HasPath(f"/results/sensor poses (blue)/{report['n_poses']:03d}")
+
+
+def test_a_box_no_container_holds_is_said_in_words():
+    report = {"container": {"name": None, "reason": "no container holds 0.9 x 0.2 x 0.1 m",
+                            "margin_from": "the interval", "clearance": 0.005},
+              "metrics": {"packing": {"fits": False, "right_size": False,
+                                      "right_size_container": None}}}
+    text = _container_text(report)
+    assert "None" not in text
+    assert "<b>No container</b>: no container holds" in text
+    assert "no container holds the true box either" in text

@@ -19,7 +19,7 @@ from lrnbv_drake.experiments.session import JOURNAL_FILE, SESSION_FILE
 MARKERS: dict[str, tuple[str, ...]] = {
     "hardware": (SESSION_FILE, JOURNAL_FILE),
     "benchmark": ("results.csv", "episodes"),
-    "run": ("report.json", "frames.npz", "replay.html"),
+    "run": ("report.json", "frames.npz", "replay.html", "report.html"),
 }
 #: How a command carries on with a folder of its own results it refuses.
 _CARRY_ON = {"hardware": "continue the session with `lrnbv hardware --resume {dir}`",

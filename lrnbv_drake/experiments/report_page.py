@@ -155,10 +155,12 @@ def _container_text(report: dict[str, Any]) -> str:
     extra = ""
     packing = report.get("metrics", {}).get("packing")
     if packing is not None:
-        extra = (f"<p>Against the true object: fits {'yes' if packing['fits'] else 'no'}; "
-                 f"the right size ({html.escape(str(packing['right_size_container']))}): "
-                 f"{'yes' if packing['right_size'] else 'no'}.</p>")
-    return (f"<p><b>{html.escape(str(container['name']))}</b>: "
+        right = packing["right_size_container"]
+        extra = (f"<p>Against the true object: fits {'yes' if packing['fits'] else 'no'}; " + (
+            f"the right size ({html.escape(right)}): {'yes' if packing['right_size'] else 'no'}"
+            if right is not None else "no container holds the true box either") + ".</p>")
+    name = container["name"]
+    return (f"<p><b>{html.escape(name) if name is not None else 'No container'}</b>: "
             f"{html.escape(container['reason'])}. Margin from {container['margin_from']}, "
             f"clearance {1000 * container['clearance']:.0f} mm.</p>{extra}")
 
