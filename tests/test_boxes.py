@@ -110,6 +110,9 @@ def test_oriented_box_canonical_form():
     )
     with pytest.raises(ValueError):
         OrientedBox([0, 0, 0], [1, -1, 1])
+    # A rounding step below -pi/2 stays in [-pi/2, pi/2): the float modulo rounds it up to +pi/2.
+    below = OrientedBox([0, 0, 0], [2, 1, 1], yaw=math.nextafter(-math.pi / 2, -math.inf))
+    assert -math.pi / 2 <= below.yaw < math.pi / 2
 
 
 def test_oriented_box_corners_footprint_and_aligned():

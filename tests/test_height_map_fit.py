@@ -1,6 +1,8 @@
 """The height-map fit (core/height_map_fit.py): its ray caster against the box fit's, its parts
 test, and the estimate on readings the simulated cell renders of objects that are not boxes."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import trimesh
@@ -63,6 +65,23 @@ def _box_scene(eyes: list[list[float]]):
     readings = _Readings(rays, origin, to_grid, 0.0, 0.3, model, BoxFitParams())
     grid = _box_columns(edges_x, edges_y, BOX, 0.0, origin, to_grid)
     return rays, readings, edges_x, edges_y, grid
+
+
+def test_the_descents_cost_counts_every_wall_once_at_its_full_price():
+    """The cost `_descend` returns is what it minimises: each wall between columns once, and
+    a wall to the table beyond the grid's border too (it was counted at half)."""
+    _, readings, edges_x, edges_y, _ = _box_scene([[0.5, 0.0, 0.45], [0.75, 0.0, 0.3]])
+    heights = np.zeros((len(edges_x) - 1, len(edges_y) - 1))
+    heights[0, 5], heights[8, 8] = 0.02, 0.03  # one column on the border, one inside
+    padded = np.pad(heights, 1)
+    walls = np.abs(np.diff(padded, axis=0)).sum() + np.abs(np.diff(padded, axis=1)).sum()
+    params = HeightMapParams(volume_cost=0.0, column_cost=0.0, max_sweeps=0)
+
+    def cost(wall_cost):
+        flat = heights.reshape(-1).copy()
+        return readings.descend(edges_x, edges_y, flat, np.zeros(flat.size),
+                                np.ones(flat.size, bool), replace(params, wall_cost=wall_cost))
+    assert cost(2000.0) - cost(0.0) == pytest.approx(2000.0 * 0.01 * walls)
 
 
 def test_columns_of_a_box_predict_what_the_box_fit_predicts():

@@ -359,6 +359,10 @@ def _through(rays: ZoneRays, x: np.ndarray, floor: float) -> np.ndarray:
     return out
 
 
+#: The least length, width and height a search starts from, metres (`_Edges`).
+MIN_START_M = 0.01
+
+
 class _Edges:
     """The box as its four side positions along and across the start box's axes, its height
     and its yaw, p = (a1, a2, b1, b2, h, yaw): each side is seen by its own zones, so the cost
@@ -366,8 +370,12 @@ class _Edges:
 
     def __init__(self, start: OrientedBox) -> None:
         self.c0 = np.asarray(start.center[:2], float)
-        half = start.dims / 2
-        self.p0 = np.array([-half[0], half[0], -half[1], half[1], start.dims[2], start.yaw])
+        # A start flat in two dimensions (the cell centres of one column) would keep every
+        # trial flat, and a flat box costs inf: a search that moves one side at a time never
+        # leaves it. One cell is the least a start from the map can mean.
+        dims = np.maximum(start.dims, MIN_START_M)
+        half = dims / 2
+        self.p0 = np.array([-half[0], half[0], -half[1], half[1], dims[2], start.yaw])
 
     def to_x(self, p: np.ndarray) -> np.ndarray:
         a1, a2, b1, b2, h, yaw = p
@@ -478,6 +486,8 @@ def fit_box(rays: ZoneRays, start: OrientedBox, table_height: float,
     spans = np.array([span] * 5 + [math.radians(params.yaw_span_deg) * span / 0.03])
     steps = np.array([params.step_m] * 5 + [math.radians(params.yaw_step_deg)])
     p, best = search.run(edges.p0, spans, steps, params.max_sweeps)
+    if not math.isfinite(best):  # no box near the start explains any reading
+        return None
     cost = search.cost
     # How far each side (and the top) can move out and in: the dimension's bounds add them.
     # A cost far above one per zone says the model explains the readings worse than its
@@ -501,10 +511,16 @@ def fit_box(rays: ZoneRays, start: OrientedBox, table_height: float,
     moves = out + inward
     width = np.array([moves[0] + moves[1], moves[2] + moves[3], moves[4]])
     lower = np.maximum(lower, 0.0)
-    if box.dims[0] != abs(x[3]):  # the canonical box swapped length and width
+    if _swapped(box.yaw, x[2]):  # the canonical box's length is the search's width
         lower, upper, width = lower[[1, 0, 2]], upper[[1, 0, 2]], width[[1, 0, 2]]
     return BoxFit(box, lower, upper, best, len(rays), search.evaluations,
                   readings_width=None if not interval else width)
+
+
+def _swapped(canonical_yaw: float, yaw: float) -> bool:
+    """Whether a canonical box's length lies along the width of the box it was made from at
+    `yaw`: told by the yaws, as a square's dims are equal either way."""
+    return abs(math.cos(canonical_yaw - yaw)) < 0.5
 
 
 def profile_move(cost, p: np.ndarray, index: int, sign: int, best: float,
@@ -532,6 +548,11 @@ def profile_move(cost, p: np.ndarray, index: int, sign: int, best: float,
     return (inside + step) / 2
 
 
+#: Below this footprint IoU with the start it is given, `BoxEstimator` also fits from the
+#: start. A cell box is 1-3 cm larger than the object: 0.6-0.8 against a right estimate.
+STALE_IOU = 0.5
+
+
 class BoxEstimator:
     """The fit kept up to date pose by pose: each `add` stores a frame's rays and `estimate`
     refits, starting from the previous estimate when there is one (a warm start), so a planner
@@ -551,14 +572,21 @@ class BoxEstimator:
 
     def estimate(self, start: OrientedBox | None = None, interval: bool = True
                  ) -> BoxFit | None:
-        """Refits from the last estimate (or `start`, e.g. the cell box, before the first);
+        """Refits from the last estimate (6 mm around it) and, before the first or when the last
+        estimate and `start` (e.g. the cell box) disagree (footprint IoU below `STALE_IOU`),
+        from `start` (3 cm around it), keeping the fit of lower cost per zone: an estimate of
+        something else (a first cluster on noise) is not held there by the narrow search.
         `interval` as in `fit_box`."""
-        warm = self.last is not None
-        origin = self.last.box if warm else start
-        if origin is None:
-            return None
-        self.last = fit_box(self._rays, origin, self._table_height, self._model, self._params,
-                            interval, span=0.006 if warm else 0.03) or self.last
+        fits = []
+        if self.last is not None:
+            fits.append(fit_box(self._rays, self.last.box, self._table_height, self._model,
+                                self._params, interval, span=0.006))
+        if start is not None and (self.last is None or self.last.box.iou(start) < STALE_IOU):
+            fits.append(fit_box(self._rays, start, self._table_height, self._model,
+                                self._params, interval, span=0.03))
+        fits = [f for f in fits if f is not None]
+        if fits:
+            self.last = min(fits, key=lambda f: f.cost / f.n_zones)
         return self.last
 
 

@@ -37,7 +37,9 @@ def _as_vec3(value: np.ndarray | float, name: str) -> np.ndarray:
 
 def _normalise_yaw(yaw: float, period: float = math.pi) -> float:
     """Wraps `yaw` into [-period/2, period/2)."""
-    return float((yaw + period / 2) % period - period / 2)
+    wrapped = (yaw + period / 2) % period - period / 2
+    # A yaw a rounding step below -period/2 wraps to +period/2 exactly.
+    return float(wrapped - period if wrapped >= period / 2 else wrapped)
 
 
 @dc.dataclass

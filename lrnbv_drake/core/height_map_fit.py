@@ -51,6 +51,7 @@ from lrnbv_drake.core.box_fit import (
     ZoneRays,
     _as_vector,
     _reduce_sorted,
+    _swapped,
     _table_depths,
     fit_box,
     near_box,
@@ -341,9 +342,14 @@ def _descend(o, d, measured, sigma, m, table_t, start, cell, t_in, t_out, cell_s
         if not moved:
             break
     prior = 0.0
-    for c in range(n_cells):  # each inner wall counted from both sides
+    nx = n_cells // ny
+    for c in range(n_cells):  # each inner wall counted from both sides, so at half its cost
         prior += _prior(c, heights[c], heights, expected, ny, size, wall_cost / 2, volume_cost,
                         column_cost, min_height)
+        # A wall to the table beyond the grid is counted from this side only: its other half.
+        i, j = c // ny, c % ny
+        border = (i == 0) + (i == nx - 1) + (j == 0) + (j == ny - 1)
+        prior += wall_cost / 2 * size * border * heights[c]
     return zone_cost.sum() + prior
 
 
@@ -523,7 +529,7 @@ def fit_height_map(rays: ZoneRays, start: OrientedBox, table_height: float,
         extents = np.array([clip[1] - clip[0], clip[3] - clip[2], clip[4]])
         if interval:
             lower, upper = clipper.interval(clip, cost, fit_params, model)
-            if box.dims[0] != clip[1] - clip[0]:  # the canonical box swapped length and width
+            if _swapped(box.yaw, start.yaw):  # the box's length is the grid's y
                 lower, upper = lower[[1, 0, 2]], upper[[1, 0, 2]]
     else:
         cost = readings.cost(edges_x, edges_y, grid)
