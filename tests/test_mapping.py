@@ -429,6 +429,17 @@ def test_unknown_along_segments():
     assert n[0] == 49 and length[0] == pytest.approx(0.485, abs=1e-12)
 
 
+def test_a_box_face_on_a_cell_face_counts_no_cell_beyond_it():
+    """z cells 5..9 lie in the box [0, 0.1]; the walk's accumulated rounding gave cell 10 an
+    overlap of 1e-17 m, counted one way along the segment and not the other."""
+    empty = OccupancyMap(RES, bounds=((-0.3, -0.3, -0.3), (0.3, 0.3, 0.3)))
+    box = ((0.0, 0.0, 0.0), (0.1, 0.1, 0.1))
+    up, down = [0.055, 0.055, 0.055], [0.055, 0.055, 0.25]
+    for o, e in ((up, down), (down, up)):
+        n, length = empty.unknown_along_segments([o], [e], box=box)
+        assert n[0] == 5 and length[0] == pytest.approx(0.045, abs=1e-12)
+
+
 def test_queries_and_copies():
     m = line_map()
     np.testing.assert_array_equal(m.classify([[0.505, 0.005, 0.005], [0.255, 0.0, 0.0],

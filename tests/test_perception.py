@@ -1,6 +1,7 @@
 """Object extraction on synthetic occupancy: the visible surfaces of a known box, sampled densely
 and keyed into 1 cm cells the way an occupancy map keys its hits (cell = floor(p / res))."""
 
+import dataclasses as dc
 import math
 
 import numpy as np
@@ -141,6 +142,18 @@ def test_object_points_are_the_cells_above_the_table():
     assert sorted(map(tuple, result.object_points)) == sorted(map(tuple, expected))
     assert np.all(result.labels[result.labels != 0] == LABEL_TABLE)
     assert result.table_height == 0.0
+
+
+@pytest.mark.parametrize("table_height", [0.0, 0.12, 0.13, 0.14, 0.2])
+def test_the_first_layer_above_the_tolerance_is_kept_at_any_table_height(table_height):
+    """Cell centres fall exactly on the cut when the table is a multiple of the cell: the
+    docstring keeps them, and at 0.13 m the float sum 0.13 + 0.015 dropped them."""
+    k0 = round(table_height / RES)
+    cells = np.array([((i + 0.5) * RES, (j + 0.5) * RES, (k + 0.5) * RES)
+                      for i in range(6) for j in range(6) for k in range(k0, k0 + 5)])
+    params = dc.replace(PARAMS, table_height=table_height, table_tolerance=0.015)
+    result = extract_object(cells, params)
+    assert len(np.unique(np.round(result.object_points[:, 2], 9))) == 4  # layers 2..5
 
 
 def test_roi_is_the_aligned_box_inflated_and_clipped():

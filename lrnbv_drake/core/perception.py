@@ -212,7 +212,9 @@ def extract_object(occupied_points: np.ndarray, params: ExtractionParams) -> Ext
             pts[keep], params.ransac_threshold, params.ransac_iterations, rng
         )
     if table_height is not None:
-        keep &= pts[:, 2] >= table_height + params.table_tolerance
+        # Cell centres lie on the cut when the table height is a multiple of the cell: keep
+        # them whatever the last bit of the sum (at 0.13 + 0.015 it dropped a whole layer).
+        keep &= pts[:, 2] >= table_height + params.table_tolerance - 1e-9
     if not keep.any():
         return ExtractionResult(
             ExtractionStatus.ONLY_TABLE,

@@ -166,7 +166,9 @@ def unknown_kernel(grid, lo, res, thres, origins, ends, bmin, bmax, stop_at_occu
             t_next = min(next_t[0], next_t[1], next_t[2])
             if value != value:
                 overlap = min(t_next, t1, b1) - max(t, b0)
-                if overlap > 0:
+                # The walk's t accumulates rounding: a box face on a cell face leaves the
+                # next cell an overlap of 1e-17 m, not 0.
+                if overlap > 1e-9 * res:
                     out_n[r] += 1
                     out_len[r] += overlap
             cell, next_t, t = walk_step(cell, step, next_t, per_cell, dims)
