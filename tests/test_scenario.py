@@ -116,13 +116,16 @@ def test_an_override_replaces_only_the_fields_it_names():
         override(base, {"robot": {"speed": 1}})
 
 
-def test_the_paper_preset_sets_the_papers_estimator_stop_and_utility_and_nothing_else():
+def test_the_paper_preset_sets_the_papers_estimator_stop_utility_and_search_and_nothing_else():
     paper, product = preset("paper"), preset(None)
     assert (paper.extraction.estimator, paper.planner.stop.rule,
-            paper.planner.travel_discount) == ("cells", "paper", 0.0)
+            paper.planner.travel_discount, paper.planner.search_upper[2]) == (
+                "cells", "paper", 0.0, 0.3)
     assert (product.extraction.estimator, product.planner.stop.rule,
-            product.planner.travel_discount) == ("shape", "box", 0.0)
+            product.planner.travel_discount, product.planner.search_upper[2]) == (
+                "shape", "box", 0.0, 0.08)
     paper.extraction.estimator, paper.planner.stop.rule = "shape", "box"
+    paper.planner.search_upper = product.planner.search_upper
     assert yaml_dump_typed(paper) == yaml_dump_typed(product)
     with pytest.raises(ScenarioError, match="unknown preset 'papers'"):
         preset("papers")
