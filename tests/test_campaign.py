@@ -26,6 +26,7 @@ from lrnbv_drake.experiments.campaign.figures import (
     plot_campaign,
     plot_coverage_curves,
 )
+from lrnbv_drake.experiments.campaign.index_page import index_page
 from lrnbv_drake.experiments.campaign.plan import (
     CampaignConfig,
     CampaignError,
@@ -478,3 +479,14 @@ def test_ray_backend_runs_the_same_episodes(tmp_path):
         synthetic_metrics(p, "vertical_box", t) for t in range(2) for p in ALL_PLANNERS]
     rows = _csv(config.out_dir / "results.csv")
     assert [r["seed"] for r in rows] == [str(r["seed"]) for r in records]
+
+
+def test_the_index_page_escapes_what_a_row_holds_and_leaves_a_failed_row_blank(tmp_path):
+    """An object label comes from a mesh's file name; a failed episode has NaN figures."""
+    nan = float("nan")
+    row = {"object": "<b>part</b>", "planner": "lrnbv", "trial": 0, "n_poses": nan,
+           "abs_err_L": nan, "abs_err_W": nan, "abs_err_H": nan, "iou": nan,
+           "container": None, "cycle_s": nan, "status": "failed"}
+    page = index_page(tmp_path, [{"campaign": {"run_dir": "runs/x"}}], [row])
+    assert "<b>part</b>" not in page and "&lt;b&gt;part&lt;/b&gt;" in page
+    assert "nan" not in page and "None" not in page

@@ -27,8 +27,9 @@ def index_page(out_dir: Path, records: Sequence[dict[str, Any]],
         link = (f'<a href="{html.escape(run_dir)}/report.html">report</a>'
                 if report.exists() else html.escape(row["status"]))
         errors = " / ".join(_cell(row[f"abs_err_{d}"] * 1000) for d in "LWH")
-        cells = [row["object"], row["planner"], row["trial"], row["n_poses"], errors,
-                 _cell(row["iou"], 3), row["container"], _cell(row["cycle_s"]), link]
+        cells = [_cell(row["object"]), _cell(row["planner"]), _cell(row["trial"]),
+                 _cell(row["n_poses"], 0), errors, _cell(row["iou"], 3),
+                 _cell(row["container"] or ""), _cell(row["cycle_s"]), link]
         lines.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     header = ("<tr><th>object</th><th>planner</th><th>trial</th><th>poses</th>"
               "<th>|error| L / W / H (mm)</th><th>IoU</th><th>container</th>"
