@@ -9,8 +9,10 @@ from rendered_views import NOISE_FREE, OFF_MODEL
 from rendered_views import render as _render
 from rendered_views import start_near as _start
 
+from lrnbv_drake.core import box_fit
 from lrnbv_drake.core.box_fit import (
     BoxEstimator,
+    BoxFit,
     BoxFitParams,
     ZoneRays,
     _as_vector,
@@ -281,3 +283,25 @@ def test_a_square_boxs_bounds_follow_its_axes_whichever_way_the_search_was_turne
         if axis == 1:
             direction = np.array([-direction[1], direction[0]])
         assert abs(direction @ along) > 0.9, (fit.box.yaw, fit.readings_width)
+
+
+def test_a_second_start_runs_only_when_the_footprints_disagree(monkeypatch):
+    """A flat object's estimate and its cell box (3 cm larger, twice as tall) overlap by 0.30
+    in volume but 0.76 on the table: the same place, so one warm fit, not a second from the
+    cell box at every pose; a cell box 16 cm away is another place, and gets its own fit."""
+    flat = OrientedBox(np.array([0.5, 0.0, 0.01]), np.array([0.2, 0.2, 0.02]), 0.0)
+    cell_box = OrientedBox(np.array([0.5, 0.0, 0.025]), np.array([0.23, 0.23, 0.05]), 0.0)
+    away = OrientedBox(np.array([0.5, 0.16, 0.025]), np.array([0.05, 0.04, 0.05]), 0.0)
+    assert flat.iou(cell_box) < 0.5 <= flat.footprint_iou(cell_box)
+    starts = []
+
+    def fit(rays, start, *args, **kwargs):
+        starts.append(start)
+        return BoxFit(start, start.dims, start.dims, 1.0, 10, 1)
+    monkeypatch.setattr(box_fit, "fit_box", fit)
+    estimator = BoxEstimator(SensorModelParams(), 0.0)
+    for start, fits in ((cell_box, 1), (away, 2)):
+        estimator.last = BoxFit(flat, flat.dims, flat.dims, 1.0, 10, 1)
+        starts.clear()
+        estimator.estimate(start, interval=False)
+        assert len(starts) == fits

@@ -298,3 +298,11 @@ def test_from_points_on_a_trimesh_ground_truth():
     np.testing.assert_allclose(fitted.center, [0.1, 0.2, 0.04], atol=1e-12)
     assert yaw_error(fitted.yaw, math.radians(-70 + 90)) < 1e-9  # mesh y is the long side
     assert fitted.volume == pytest.approx(mesh.volume)
+
+
+def test_footprint_iou_ignores_the_heights():
+    # 2 x 1 footprints shifted by 1 along x: 1 m^2 in common of 3 (hand-worked).
+    a = OrientedBox([0.0, 0.0, 0.5], [2.0, 1.0, 1.0], 0.0)
+    b = OrientedBox([1.0, 0.0, 3.0], [2.0, 1.0, 0.2], 0.0)
+    assert a.footprint_iou(b) == pytest.approx(1 / 3)
+    assert a.iou(b) == 0.0  # their z ranges do not meet

@@ -20,6 +20,8 @@ import trimesh
 from lrnbv_drake.cli import run as run_cli
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.cli.out_dir import MARKERS
+from lrnbv_drake.station.parts import check_scenario_files
+from lrnbv_drake.station.scenario import ScenarioError, load_scenario
 
 WAIT = 90.0  # upper bound of every wait on a subprocess; a passing run never comes near it
 
@@ -150,6 +152,14 @@ def test_a_file_the_episode_reads_late_is_checked_before_anything_runs(
     assert main([command, *flags, *extra, "--out", str(out)]) == 2
     assert words in capsys.readouterr().err
     assert all((out / name).read_text() == "earlier" for name in earlier)
+
+
+def test_a_real_board_is_not_refused_over_the_simulated_devices_files():
+    """`device:` is the simulated VL53L8CX's: a session with the real board never reads it."""
+    scenario = load_scenario(data="device: {zone_directions: missing.csv}")
+    check_scenario_files(scenario, simulated_sensor=False)
+    with pytest.raises(ScenarioError, match=r"'device\.zone_directions'"):
+        check_scenario_files(scenario)
 
 
 def test_a_report_page_alone_marks_an_earlier_run(tmp_path, capsys):

@@ -75,6 +75,22 @@ def test_a_range_error_names_the_file_that_set_the_value(tmp_path):
         load_scenario(data="{max_poses: 0}")
 
 
+def test_a_search_region_under_the_table_is_refused_where_it_is_set():
+    """The default search region reaches 8 cm above a table at 0: on a table at 0.1 m the
+    planner's ROI came out upside down mid-episode."""
+    with pytest.raises(ScenarioError, match=r"'planner.search_upper': its z 0.08 m is not above"):
+        load_scenario(data="{cell: {table_height: 0.1}}")
+    raised = "{cell: {table_height: 0.1}, planner: {search_upper: [0.75, 0.3, 0.3]}}"
+    assert load_scenario(data=raised).planner.search_upper[2] == 0.3
+
+
+def test_a_pair_of_fields_split_between_a_file_and_a_string_is_checked_as_a_whole(tmp_path):
+    file = tmp_path / "cell.yaml"
+    file.write_text("planner: {search_lower: [0.25, -0.3, 0.1]}\n")
+    scenario = load_scenario(file, data="planner: {search_upper: [0.75, 0.3, 0.4]}")
+    assert scenario.planner.search_lower[2] == 0.1 and scenario.planner.search_upper[2] == 0.4
+
+
 def test_every_rule_names_a_field_of_the_scenario():
     scenario = Scenario()
     for path, ok, _ in RULES:

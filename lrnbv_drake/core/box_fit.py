@@ -581,7 +581,8 @@ class BoxEstimator:
         if self.last is not None:
             fits.append(fit_box(self._rays, self.last.box, self._table_height, self._model,
                                 self._params, interval, span=0.006))
-        if start is not None and (self.last is None or self.last.box.iou(start) < STALE_IOU):
+        if start is not None and (self.last is None
+                                  or self.last.box.footprint_iou(start) < STALE_IOU):
             fits.append(fit_box(self._rays, start, self._table_height, self._model,
                                 self._params, interval, span=0.03))
         fits = [f for f in fits if f is not None]

@@ -220,6 +220,13 @@ class OrientedBox:
         local = np.column_stack([local_xy, pts[:, 2] - self.center[2]])
         return np.all(np.abs(local) <= self.dims / 2 + tol, axis=1)
 
+    def footprint_iou(self, other: OrientedBox) -> float:
+        """Intersection over union of the two footprints, whatever the heights: whether two
+        boxes describe the same place on the table."""
+        inter = shapely.intersection(self.footprint(), other.footprint(), grid_size=1e-12).area
+        union = self.dims[0] * self.dims[1] + other.dims[0] * other.dims[1] - inter
+        return inter / union if union > 0 else 0.0
+
     def iou(self, other: OrientedBox) -> float:
         """Exact 3-D intersection over union: since both boxes are only yawed, the intersection is
         a prism, footprint overlap area times the overlap of the z ranges. 0 when both are flat."""

@@ -337,7 +337,7 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
         scenario = override(scenario, {"hardware": {"robot_driver": "playback",
                                                     "sensor_driver": "simulated"}})
     check_hardware_config(scenario)
-    check_scenario_files(scenario)
+    check_scenario_files(scenario, scenario.hardware.sensor_driver == "simulated")
     if scenario.robot.robot_ip:
         q_start = _read_robot(scenario, must_be_ready=not dry_run)
     elif recorded:  # a dry run without a robot resumes at the last recorded pose

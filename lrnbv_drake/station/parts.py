@@ -238,9 +238,10 @@ def container_catalogue(scenario: Scenario) -> list[Container]:
         raise ScenarioError(f"field 'packing.containers': {e}") from e
 
 
-def check_scenario_files(scenario: Scenario) -> None:
+def check_scenario_files(scenario: Scenario, simulated_sensor: bool = True) -> None:
     """Reads every file the scenario names that an episode reads only at its end or while
-    it is built (the container catalogue, the zone-direction tables), so that a bad one is
+    it is built (the container catalogue, the zone-direction tables; the simulated device's
+    only with `simulated_sensor`: a real board never reads `device:`), so that a bad one is
     refused before anything runs or moves, not after the data is captured.
 
     Raises:
@@ -248,7 +249,8 @@ def check_scenario_files(scenario: Scenario) -> None:
     """
     container_catalogue(scenario)
     zone_geometry(scenario)
-    device_params(scenario)
+    if simulated_sensor:
+        device_params(scenario)
 
 
 def safety_limits(scenario: Scenario, X_W_base: np.ndarray, X_tool0_S: np.ndarray

@@ -406,7 +406,7 @@ def load_scenario(filename: str | Path | None = None, data: str | None = None,
         try:
             check_against_schema(parsed, Scenario)
             scenario = yaml_load_typed(schema=Scenario, data=raw_text, defaults=scenario)
-            check_ranges(scenario)  # here, so that the error names the source that set it
+            check_ranges(scenario, fields_only=True)  # so that the error names the source
         except ScenarioError as e:
             raise ScenarioError(f"{label}: {e}") from e
     check_ranges(scenario)

@@ -185,13 +185,24 @@ def _field(scenario: Scenario, path: str) -> Any:
     return value
 
 
-def check_ranges(scenario: Scenario) -> None:
-    """Raises ScenarioError naming the first field whose value is out of its range (`RULES`,
-    `BOXES`); the types are already checked when the scenario is loaded."""
+def check_ranges(scenario: Scenario, fields_only: bool = False) -> None:
+    """Raises ScenarioError naming the first field whose value is out of its range (`RULES`)
+    and, unless `fields_only` (a scenario one source of several has set so far), the first
+    pair of fields that disagree (`BOXES`, the search region above the table); the types are
+    already checked when the scenario is loaded."""
     for path, ok, expected in RULES:
         value = _field(scenario, path)
         if value is not None and not ok(value):  # None: an optional field left unset
             raise ScenarioError(f"field '{path}': expected {expected}, got {value!r}")
+    if fields_only:
+        return
+    top = scenario.cell.table_height + scenario.extraction.table_tolerance
+    if not scenario.planner.search_upper[2] > top:
+        raise ScenarioError(
+            f"field 'planner.search_upper': its z {scenario.planner.search_upper[2]:g} m is not "
+            f"above the table top plus extraction.table_tolerance ({top:g} m), so nothing "
+            f"found in the search region could be the object; expected a world z above it "
+            f"(the default searches the table's lowest 8 cm)")
     for lower_path, upper_path in BOXES:
         lower, upper = _field(scenario, lower_path), _field(scenario, upper_path)
         if not all(lo < hi for lo, hi in zip(lower, upper, strict=True)):
