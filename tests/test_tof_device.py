@@ -100,6 +100,23 @@ def test_without_merging_the_ideal_rule_would_report_the_near_surface():
     assert _zone(ideal) == (400, STATUS_VALID)
 
 
+@pytest.mark.parametrize("knob", [{"illumination": True}, {"startup_statuses": True},
+                                  {"reported_sigma_spread": 0.2}])
+def test_one_knob_on_the_ideal_device_keeps_its_share_rule(knob):
+    """Closest order without merging keeps the ideal rule, as `DeviceBehaviour` documents: a
+    sliver under `min_share` (9 % against 25 %) is not the zone's target, one over it is. A
+    single knob used to send the zone to signal detection, which reported the sliver."""
+    behaviour = DeviceBehaviour(**knob)
+    assert not behaviour.ideal and behaviour.merge_mm == 0
+    previous = _read(behaviour, *_scene(0.5, 0.5, 1.0, 0.5))  # past the start-up statuses
+    for share, expected_mm in ((6 / 64, 1000), (20 / 64, 500)):
+        depth, rho = _scene(0.5, 0.5, 1.0, 0.5, near_share=share)
+        ideal = zone_readings(depth.reshape(8, 8, 8, 8), NOISELESS, frame_rng(0, 1))
+        assert _zone(ideal)[0] == expected_mm
+        assert int(_read(behaviour, depth, rho, previous=previous).distance_mm[ZONE]) \
+            == expected_mm
+
+
 def test_the_sharpener_bleeds_a_near_target_into_its_neighbours():
     # A whole zone at 0.1 m over a wall at 0.5 m (UM3109 4.8's example). A 4-neighbour sees
     # the wall (its own samples and 2 % of its three other neighbours') and 2 % of the near

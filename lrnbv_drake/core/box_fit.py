@@ -231,7 +231,7 @@ def _reduce_sorted(ordered, min_count, gap_m, slope, merge_m, strongest, merged_
         d = ordered[j]
         signal[j] = 1.0 / (d * d) if math.isfinite(d) else 0.0
     sorted_target(ordered, signal, ones, foreign, ordered.shape[0], gap_m, slope, merge_m,
-                  strongest, merged_mode, 0.0, target)
+                  strongest, merged_mode, 0.0, min_count, target)
     return target[0]
 
 

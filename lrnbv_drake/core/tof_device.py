@@ -239,22 +239,24 @@ def bleed_samples(depth: np.ndarray, signal: np.ndarray, reflectance: np.ndarray
 
 @numba.njit(cache=True)
 def sorted_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, merge_m,
-                  strongest, merged_mode, signal_limit, out):
+                  strongest, merged_mode, signal_limit, min_count, out):
     """One zone, its samples sorted by depth (inf, where nothing returns, last): groups them
     into surfaces by the depth-gap rule and surfaces into targets within `merge_m`, and
     writes the reported target's depth (m), status, signal-weighted reflectance and zone
-    signal into `out` (depth NaN where no target is detected). The box fit predicts a
-    merging device's zones with it too."""
+    signal into `out` (depth NaN where no target is detected). With the closest order and no
+    merging, a surface of fewer than `min_count` samples is not a target (the ideal rule's
+    share, `cluster_rule`). The box fit predicts a merging device's zones with it too."""
     m = depth.shape[0]
     best_depth, best_status, best_rho, best_signal = np.nan, 255, 0.0, -1.0
     i = 0
     # the target being built: its signal sums and its surfaces' extreme centroids
     t_s, t_sd, t_srho, t_sf = 0.0, 0.0, 0.0, 0.0
-    t_surfaces, t_near, t_far, t_last = 0, 0.0, 0.0, 0.0
+    t_surfaces, t_near, t_far, t_last, t_n = 0, 0.0, 0.0, 0.0, 0
     centroid = 0.0
+    share_rule = merge_m <= 0.0 and not strongest
     while True:
         # next surface, or flush at the end
-        s_s, s_sd, s_srho, s_sf = 0.0, 0.0, 0.0, 0.0
+        s_s, s_sd, s_srho, s_sf, s_n = 0.0, 0.0, 0.0, 0.0, 0
         at_end = i >= m or not math.isfinite(depth[i])
         if not at_end:
             j = i
@@ -264,6 +266,7 @@ def sorted_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, 
                 s_srho += signal[j] * reflectance[j]
                 if foreign[j]:
                     s_sf += signal[j]
+                s_n += 1
                 j += 1
                 if j >= m or not math.isfinite(depth[j]):
                     break
@@ -278,13 +281,14 @@ def sorted_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, 
                 t_sd += s_sd
                 t_srho += s_srho
                 t_sf += s_sf
+                t_n += s_n
                 t_surfaces += 1
                 t_far = centroid
                 t_last = centroid
                 continue
         if t_surfaces > 0:  # close the target being built
             zone_signal = t_s / own_count
-            if zone_signal >= signal_limit:
+            if zone_signal >= signal_limit and not (share_rule and t_n < min_count):
                 better = (best_signal < 0.0) or (strongest and zone_signal > best_signal)
                 if better:
                     if merged_mode == 0:
@@ -304,7 +308,7 @@ def sorted_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, 
         if at_end:
             break
         t_s, t_sd, t_srho, t_sf = s_s, s_sd, s_srho, s_sf
-        t_surfaces, t_near, t_far, t_last = 1, centroid, centroid, centroid
+        t_surfaces, t_near, t_far, t_last, t_n = 1, centroid, centroid, centroid, s_n
     out[0] = best_depth
     out[1] = best_status
     out[2] = best_rho
@@ -313,7 +317,7 @@ def sorted_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, 
 
 @numba.njit(cache=True)
 def _targets_kernel(depth, signal, reflectance, foreign, own_count, gap_m, slope, merge_m,
-                    strongest, merged_mode, signal_limit, out):
+                    strongest, merged_mode, signal_limit, min_count, out):
     m = depth.shape[1]
     d, s, r, f = np.empty(m), np.empty(m), np.empty(m), np.empty(m, np.bool_)
     for z in range(depth.shape[0]):
@@ -322,7 +326,7 @@ def _targets_kernel(depth, signal, reflectance, foreign, own_count, gap_m, slope
             k = order[j]
             d[j], s[j], r[j], f[j] = depth[z, k], signal[z, k], reflectance[z, k], foreign[z, k]
         sorted_target(d, s, r, f, own_count, gap_m, slope, merge_m, strongest, merged_mode,
-                      signal_limit, out[z])
+                      signal_limit, min_count, out[z])
 
 
 def zone_targets(depth_m: np.ndarray, signal: np.ndarray, reflectance: np.ndarray,
@@ -340,14 +344,15 @@ def zone_targets(depth_m: np.ndarray, signal: np.ndarray, reflectance: np.ndarra
     Returns:
         (n, 4): depth (m, NaN where nothing is detected), status, reflectance, zone signal.
     """
-    _, gap_m, slope = cluster_rule(params, own_count)
+    min_count, gap_m, slope = cluster_rule(params, own_count)
     depth = np.ascontiguousarray(np.where(np.asarray(signal) > 0, depth_m, np.inf), float)
     out = np.empty((depth.shape[0], 4))
     _targets_kernel(depth, np.ascontiguousarray(signal, float),
                     np.ascontiguousarray(reflectance, float),
                     np.ascontiguousarray(foreign, bool), own_count, gap_m, slope,
                     behaviour.merge_mm / 1000.0, behaviour.target_order == "strongest",
-                    MERGED_DEPTHS.index(behaviour.merged_depth), behaviour.signal_limit(), out)
+                    MERGED_DEPTHS.index(behaviour.merged_depth), behaviour.signal_limit(),
+                    min_count, out)
     return out
 
 
