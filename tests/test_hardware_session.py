@@ -39,6 +39,14 @@ hardware: {sensor_driver: simulated}
 """
 
 
+def _hardware_heu(tmp_path, out, *flags) -> int:
+    """`lrnbv hardware` with SCENARIO from a file, HEU, into `out`: its exit code."""
+    file = tmp_path / "cell.yaml"
+    file.write_text(SCENARIO)
+    return main(["hardware", "--scenario", str(file), "--out", str(out), "--planner", "heu",
+                 *flags, "--yes"])
+
+
 def _journal_lines(out) -> int:
     path = out / JOURNAL_FILE
     return len(path.read_text().splitlines()) if path.exists() else 0
@@ -229,11 +237,8 @@ def test_an_error_after_motion_says_what_happened_and_what_is_on_disk(
             raise OSError(28, "No space left on device")
         append(journal, acquisition)
     monkeypatch.setattr(AcquisitionJournal, "append", full_disk)
-    file = tmp_path / "cell.yaml"
-    file.write_text(SCENARIO)
     out = tmp_path / "out"
-    assert main(["hardware", "--scenario", str(file), "--out", str(out), "--planner", "heu",
-                 "--yes"]) == 1
+    assert _hardware_heu(tmp_path, out) == 1
     err = capsys.readouterr().err
     assert "nothing moved" not in err and "STOPPED (error)" in err
     assert "No space left on device" in err and "the arm may have moved" in err
@@ -251,11 +256,8 @@ def test_a_report_that_fails_after_motion_is_not_called_nothing_moved(
     def broken_report(*args, **kwargs):
         raise ValueError("the catalogue changed under the session")
     monkeypatch.setattr(session, "_report", broken_report)
-    file = tmp_path / "cell.yaml"
-    file.write_text(SCENARIO)
     out = tmp_path / "out"
-    assert main(["hardware", "--scenario", str(file), "--out", str(out), "--planner", "heu",
-                 "--yes"]) == 1
+    assert _hardware_heu(tmp_path, out) == 1
     err = capsys.readouterr().err
     assert "nothing moved" not in err
     assert "ValueError: the catalogue changed under the session" in err
@@ -265,11 +267,8 @@ def test_a_report_that_fails_after_motion_is_not_called_nothing_moved(
 def test_a_bad_catalogue_is_refused_before_the_arm_is_reached(scenario, tmp_path, monkeypatch,
                                                               capsys):
     fake_rtde.install(monkeypatch, fake_rtde.FakeArm(kinematics.HOME.copy()))
-    file = tmp_path / "cell.yaml"
-    file.write_text(SCENARIO)
     out = tmp_path / "out"
-    assert main(["hardware", "--scenario", str(file), "--out", str(out), "--planner", "heu",
-                 "--containers", str(tmp_path / "missing.yaml"), "--yes"]) == 2
+    assert _hardware_heu(tmp_path, out, "--containers", str(tmp_path / "missing.yaml")) == 2
     assert "field 'packing.containers': cannot read" in capsys.readouterr().err
     assert not out.exists()
 

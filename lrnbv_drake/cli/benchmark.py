@@ -117,16 +117,14 @@ def config_from_args(args: argparse.Namespace) -> CampaignConfig:
         scenario = override(scenario, {"packing": {"containers": args.containers}})
     check_scenario_files(scenario)
     found = load_objects(args.objects, scenario.object.scale)
-    ranges = {"x": args.x_range, "y": args.y_range, "yaw_deg": args.yaw_range}
-    given = [f"--{name.split('_')[0]}-range" for name, value in ranges.items()
-             if value is not None]
+    given = {flag: (field, value) for flag, field, value in (
+        ("--x-range", "x", args.x_range), ("--y-range", "y", args.y_range),
+        ("--yaw-range", "yaw_deg", args.yaw_range)) if value is not None}
     if given and not args.random_placement:
         raise CampaignError(f"{', '.join(given)} set the random placement's ranges; add "
                             f"--random-placement (without it every trial uses the scenario's "
                             f"placement)")
-    placement = (PlacementRange(**{name: value for name, value in ranges.items()
-                                   if value is not None})
-                 if args.random_placement else None)
+    placement = (PlacementRange(**dict(given.values())) if args.random_placement else None)
     config = CampaignConfig(
         out_dir=Path(args.out), planners=tuple(args.planners), objects=found,
         trials=args.trials, scenario=scenario,

@@ -220,10 +220,15 @@ class OrientedBox:
         local = np.column_stack([local_xy, pts[:, 2] - self.center[2]])
         return np.all(np.abs(local) <= self.dims / 2 + tol, axis=1)
 
+    def _footprint_overlap(self, other: OrientedBox) -> float:
+        """The area the two footprints share. Snapped to a 1e-12 m grid: with nearly
+        coincident edges GEOS can return a point (area 0) for two overlapping rectangles."""
+        return shapely.intersection(self.footprint(), other.footprint(), grid_size=1e-12).area
+
     def footprint_iou(self, other: OrientedBox) -> float:
         """Intersection over union of the two footprints, whatever the heights: whether two
         boxes describe the same place on the table."""
-        inter = shapely.intersection(self.footprint(), other.footprint(), grid_size=1e-12).area
+        inter = self._footprint_overlap(other)
         union = self.dims[0] * self.dims[1] + other.dims[0] * other.dims[1] - inter
         return inter / union if union > 0 else 0.0
 
@@ -234,10 +239,7 @@ class OrientedBox:
         z_overlap -= max(self.center[2] - self.dims[2] / 2, other.center[2] - other.dims[2] / 2)
         inter = 0.0
         if z_overlap > 0:
-            # Snapped to a 1e-12 m grid: with nearly coincident edges GEOS can return a point
-            # (area 0) for two overlapping rectangles.
-            inter = shapely.intersection(self.footprint(), other.footprint(),
-                                         grid_size=1e-12).area * z_overlap
+            inter = self._footprint_overlap(other) * z_overlap
         union = self.volume + other.volume - inter
         return inter / union if union > 0 else 0.0
 
