@@ -21,6 +21,7 @@ from lrnbv_drake.core.box_fit import (
     _through,
     fit_box,
     predicted_depths,
+    profile_move,
     zone_rays,
 )
 from lrnbv_drake.core.boxes import OrientedBox
@@ -305,3 +306,22 @@ def test_a_second_start_runs_only_when_the_footprints_disagree(monkeypatch):
         starts.clear()
         estimator.estimate(start, interval=False)
         assert len(starts) == fits
+
+
+def test_a_profile_is_bounded_from_the_lowest_cost_it_meets():
+    """A cost that falls by 10 over the first 4 mm of the move and then rises 2500 a metre:
+    the move ends where it is `rise` above that low, 4 + 2.71 / 2500 m = 5.08 mm (to the
+    bisection's 0.5 mm), not where it is `rise` above the start (9.08 mm)."""
+    def cost(q):
+        return 2500.0 * abs(q[0] - 0.004) - 10.0
+
+    dut = profile_move(cost, np.zeros(1), 0, 1, 0.0, 2.71, BoxFitParams())
+    assert dut == pytest.approx(0.004 + 2.71 / 2500.0, abs=0.0005)
+
+
+def test_a_profile_that_never_rises_stops_at_its_limit():
+    params = BoxFitParams()
+    flat = lambda q: 1.0  # noqa: E731
+    assert profile_move(flat, np.zeros(1), 0, -1, 1.0, 2.71, params) == params.interval_max_m
+    assert profile_move(flat, np.zeros(1), 0, -1, 1.0, 2.71, params, limit=0.03) == 0.03
+    assert profile_move(flat, np.zeros(1), 0, -1, 1.0, 2.71, params, limit=0.0) == 0.0

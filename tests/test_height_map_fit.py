@@ -167,6 +167,43 @@ def test_the_clip_of_a_block_the_readings_do_not_see_never_turns_inside_out():
     assert clip[0] < clip[1] and clip[2] < clip[3] and np.isfinite(cost)
 
 
+def test_a_side_whose_outermost_column_is_a_rod_is_bounded_as_a_wall():
+    """Readings of the 12 x 8 x 10 cm box from above and four sides; its columns with a 1 cm
+    rod 4 cm long beyond one end, too thin for any zone to report. The clip cuts the rod, and
+    the length's upper bound is the box's: that end moved out as a wall 10 cm tall, which
+    the readings of the table beyond contradict within millimetres. Extended column by column
+    it would move the invisible rod out, to the grid's edge and past it, and bound nothing."""
+    _, readings, edges_x, edges_y, grid = _box_scene(
+        [[0.5, 0.0, 0.45], [0.78, 0.0, 0.25], [0.22, 0.0, 0.25], [0.5, 0.25, 0.25],
+         [0.5, -0.25, 0.25]])
+    grid[16:20, 8] = 0.10
+    dut = _Clip(readings, edges_x, edges_y, grid, HeightMapParams())
+    clip, cost = dut.search()
+    np.testing.assert_allclose(clip, [-0.06, 0.06, -0.04, 0.04, 0.10], atol=1e-9)
+    lower, upper = dut.interval(clip, cost, BoxFitParams(), SensorModelParams())
+    # The widening the box fit adds too: 2 mm and twice 0.15 of a zone at the median range.
+    share = 0.15 * float(np.median(readings.measured)) * np.radians(5.625)
+    assert upper[0] - 0.12 - (0.002 + 2 * share) < 0.005
+    assert np.all(lower <= [0.12, 0.08, 0.10]) and np.all(upper >= [0.12, 0.08, 0.10])
+
+
+def test_a_side_no_reading_sees_is_open_to_the_grids_edge_and_no_further():
+    """The box seen from above, keeping only the zones whose footprints lie wholly on its near
+    half: nothing bounds its far end, which is free to move out; past the grid's edge the map
+    has no columns and took no readings, so the bound stops there, not at `interval_max_m`
+    (10 cm)."""
+    _, readings, edges_x, edges_y, grid = _box_scene([[0.5, 0.0, 0.45], [0.5, 0.0, 0.35]])
+    near = (readings.landing[:, 0] < -0.02).reshape(readings.zones, readings.m).all(axis=1)
+    readings = readings.take(near, readings.hmax)
+    assert 0 < readings.zones < len(near)
+    dut = _Clip(readings, edges_x, edges_y, grid, HeightMapParams())
+    clip, cost = dut.search()
+    _, upper = dut.interval(clip, cost, BoxFitParams(), SensorModelParams())
+    share = 0.15 * float(np.median(readings.measured)) * np.radians(5.625)
+    out = upper[0] - (clip[1] - clip[0]) - (0.002 + 2 * share)  # both ends' moves
+    assert 0.1 - clip[1] <= out <= 0.1 - clip[1] + 0.01
+
+
 def _object_file(tmp_path, meshes: list[trimesh.Trimesh]) -> str:
     path = tmp_path / "object.obj"
     trimesh.util.concatenate(meshes).export(path)

@@ -498,8 +498,7 @@ def fit_box(rays: ZoneRays, start: OrientedBox, table_height: float,
     for i in range(5 if interval else 0):
         outward_sign = -1 if i in (0, 2) else 1
         for sign, store in ((outward_sign, out), (-outward_sign, inward)):
-            store[i] = profile_move(cost, p, i, sign, best + rise - params.interval_cost,
-                                    params)
+            store[i] = profile_move(cost, p, i, sign, best, rise, params)
     share = (params.share_tolerance * float(np.median(rays.measured))
              * math.radians(model.geometry.zone_deg))
     widen = params.interval_floor_m + np.array([2 * share, 2 * share, 0.0])
@@ -523,25 +522,37 @@ def _swapped(canonical_yaw: float, yaw: float) -> bool:
     return abs(math.cos(canonical_yaw - yaw)) < 0.5
 
 
-def profile_move(cost, p: np.ndarray, index: int, sign: int, best: float,
-                 params: BoxFitParams) -> float:
+def profile_move(cost, p: np.ndarray, index: int, sign: int, best: float, rise: float,
+                 params: BoxFitParams, limit: float | None = None) -> float:
     """How far coordinate `index` moves in direction `sign`, the others held, before the cost
-    rises by `interval_cost` (doubling from 1 mm, then bisection to 0.5 mm)."""
-    def rise(step: float) -> float:
+    rises by `rise` above the lowest cost met on the way (`best` at `p`; doubling from 1 mm,
+    then bisection to 0.5 mm), at most `limit` (`interval_max_m`).
+
+    From the lowest cost met, not from `best`: `p` is not always the minimum of `cost` along
+    the move (the height map's clip is searched before its top is refitted), and from `best`
+    a cost that falls before it rises never bounds the move (measured: flanges whose length
+    came out 10 cm open, which put them in a container two sizes up)."""
+    reach = params.interval_max_m if limit is None else min(limit, params.interval_max_m)
+    lowest = best
+
+    def rises(step: float) -> bool:
+        nonlocal lowest
         q = p.copy()
         q[index] += sign * step
-        return cost(q) - best
+        c = cost(q)
+        lowest = min(lowest, c)
+        return c - lowest >= rise
 
     inside, step = 0.0, 0.001
-    while step <= params.interval_max_m:
-        if rise(step) >= params.interval_cost:
-            break
+    while step < reach and not rises(step):
         inside, step = step, 2 * step
-    else:
-        return params.interval_max_m
+    if step >= reach:
+        if not rises(reach):
+            return reach
+        step = reach
     while step - inside > 0.0005:
         mid = (inside + step) / 2
-        if rise(mid) >= params.interval_cost:
+        if rises(mid):
             step = mid
         else:
             inside = mid

@@ -38,6 +38,7 @@ import concurrent.futures
 import copy
 import dataclasses as dc
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numba
@@ -776,18 +777,51 @@ class _Clip:
         """The cost with the top plateau at the clip's top (after `_plateau_top`)."""
         return self.cost(clip, np.where(self.plateau, clip[4], self.base))
 
+    def _walled(self, clip: np.ndarray, i: int) -> Callable[[np.ndarray], float]:
+        """The cost with side i (0-3) of the clip moved out as a wall: the columns beyond the
+        clip's outermost line on that side at that line's tallest column (no higher than the
+        top). Extended column by column instead, a side whose outermost line is a lone
+        column of a spike or a skirt a few millimetres tall moves out with nothing the
+        readings can see, and bounds nothing (a gripper's width came out 12 cm open). A wall
+        asks what the box fit's interval asks of a box's side."""
+        edges, across_edges = ((self.edges_x, self.edges_y) if i < 2
+                               else (self.edges_y, self.edges_x))
+        n = len(edges) - 1
+        lower_side = i in (0, 2)
+        # The clip's outermost cell on that side (a side on a cell edge keeps the inner cell).
+        line = int(np.clip(np.searchsorted(edges, clip[i], side="right" if lower_side
+                                           else "left") - 1, 0, n - 1))
+        centres = (across_edges[:-1] + across_edges[1:]) / 2
+        low, high = (clip[2], clip[3]) if i < 2 else (clip[0], clip[1])
+        across = np.flatnonzero((centres > low) & (centres < high))
+        base = self.base if i < 2 else self.base.T
+        beyond = np.arange(line) if lower_side else np.arange(line + 1, n)
+        walled = base.copy()
+        if len(across):
+            height = min(float(base[line, across].max()), float(clip[4]))
+            walled[beyond[:, None], across[None, :]] = height
+        grid = walled if i < 2 else walled.T
+
+        def cost(q: np.ndarray) -> float:
+            return self.cost(q, np.where(self.plateau, q[4], grid))
+        return cost
+
     def interval(self, clip: np.ndarray, best: float, fit_params: BoxFitParams,
                  model: SensorModelParams) -> tuple[np.ndarray, np.ndarray]:
         """(3,) lower and upper dimension bounds, as `box_fit.fit_box` makes them: how far each
         side and the top (the plateau with it) move out and in before the cost rises by the
-        profile level."""
+        profile level. A side moves out as a wall (`_walled`) and no further than the grid's
+        edge: past it the map has no columns and took no readings, so it could not say."""
         rise = fit_params.interval_cost * max(1.0, best / max(self.readings.zones - 5, 1))
+        grid_edges = (self.edges_x[0], self.edges_x[-1], self.edges_y[0], self.edges_y[-1])
         moves = np.zeros((5, 2))
         for i in range(5):
             outward = -1 if i in (0, 2) else 1
             for k, sign in enumerate((outward, -outward)):
-                moves[i, k] = profile_move(self.flat_cost, clip, i, sign,
-                                           best + rise - fit_params.interval_cost, fit_params)
+                cost, limit = self.flat_cost, None
+                if i < 4 and k == 0:
+                    cost, limit = self._walled(clip, i), max(abs(grid_edges[i] - clip[i]), 0.0)
+                moves[i, k] = profile_move(cost, clip, i, sign, best, rise, fit_params, limit)
         share = (fit_params.share_tolerance * float(np.median(self.readings.measured))
                  * math.radians(model.geometry.zone_deg))
         widen = fit_params.interval_floor_m + np.array([2 * share, 2 * share, 0.0])
