@@ -325,3 +325,4 @@ def test_a_profile_that_never_rises_stops_at_its_limit():
     assert profile_move(flat, np.zeros(1), 0, -1, 1.0, 2.71, params) == params.interval_max_m
     assert profile_move(flat, np.zeros(1), 0, -1, 1.0, 2.71, params, limit=0.03) == 0.03
     assert profile_move(flat, np.zeros(1), 0, -1, 1.0, 2.71, params, limit=0.0) == 0.0
+    assert profile_move(flat, np.zeros(1), 0, -1, 1.0, 2.71, params, limit=-0.01) == 0.0

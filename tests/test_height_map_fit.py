@@ -167,24 +167,54 @@ def test_the_clip_of_a_block_the_readings_do_not_see_never_turns_inside_out():
     assert clip[0] < clip[1] and clip[2] < clip[3] and np.isfinite(cost)
 
 
-def test_a_side_whose_outermost_column_is_a_rod_is_bounded_as_a_wall():
+_FIVE_VIEWS = [[0.5, 0.0, 0.45], [0.78, 0.0, 0.25], [0.22, 0.0, 0.25], [0.5, 0.25, 0.25],
+               [0.5, -0.25, 0.25]]
+
+
+def _widening(readings: _Readings) -> float:
+    """What the box fit adds to a length or width too: 2 mm and twice 0.15 of a zone's
+    footprint at the median range."""
+    return 0.002 + 2 * 0.15 * float(np.median(readings.measured)) * np.radians(5.625)
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_a_side_whose_outermost_column_is_a_rod_is_bounded_as_a_wall(axis):
     """Readings of the 12 x 8 x 10 cm box from above and four sides; its columns with a 1 cm
-    rod 4 cm long beyond one end, too thin for any zone to report. The clip cuts the rod, and
-    the length's upper bound is the box's: that end moved out as a wall 10 cm tall, which
-    the readings of the table beyond contradict within millimetres. Extended column by column
-    it would move the invisible rod out, to the grid's edge and past it, and bound nothing."""
-    _, readings, edges_x, edges_y, grid = _box_scene(
-        [[0.5, 0.0, 0.45], [0.78, 0.0, 0.25], [0.22, 0.0, 0.25], [0.5, 0.25, 0.25],
-         [0.5, -0.25, 0.25]])
-    grid[16:20, 8] = 0.10
+    rod 4 cm long beyond one end (along x) or one side (along y), too thin for any zone to
+    report. The clip cuts the rod, and that dimension's upper bound is the box's: the side
+    moved out as a wall 10 cm tall, which the readings of the table beyond contradict within
+    millimetres. Extended column by column it would move the invisible rod out, to the
+    grid's edge, and bound nothing."""
+    _, readings, edges_x, edges_y, grid = _box_scene(_FIVE_VIEWS)
+    if axis == 0:
+        grid[16:20, 8] = 0.10
+    else:
+        grid[10, 12:16] = 0.10
     dut = _Clip(readings, edges_x, edges_y, grid, HeightMapParams())
     clip, cost = dut.search()
     np.testing.assert_allclose(clip, [-0.06, 0.06, -0.04, 0.04, 0.10], atol=1e-9)
     lower, upper = dut.interval(clip, cost, BoxFitParams(), SensorModelParams())
-    # The widening the box fit adds too: 2 mm and twice 0.15 of a zone at the median range.
-    share = 0.15 * float(np.median(readings.measured)) * np.radians(5.625)
-    assert upper[0] - 0.12 - (0.002 + 2 * share) < 0.005
-    assert np.all(lower <= [0.12, 0.08, 0.10]) and np.all(upper >= [0.12, 0.08, 0.10])
+    true = np.array([0.12, 0.08, 0.10])
+    assert upper[axis] - true[axis] - _widening(readings) < 0.005
+    assert np.all(lower <= true) and np.all(upper >= true)
+
+
+def test_a_side_a_rounding_error_past_a_cell_edge_is_walled_from_the_inner_cell():
+    """The box's columns with a 5 mm skirt 4 cm long beyond its +x end, and the clip's +x side
+    on the edge between them, or one rounding error past it (the search's steps from an edge
+    land there): either way the side moves out as a wall of the box's 10 cm, not of the
+    skirt's 5 mm, which the readings cannot tell from the table."""
+    _, readings, edges_x, edges_y, grid = _box_scene(_FIVE_VIEWS)
+    grid[16:20, 4:12] = 0.005
+    dut = _Clip(readings, edges_x, edges_y, grid, HeightMapParams())
+    uppers = []
+    for x1 in (edges_x[16], np.nextafter(edges_x[16], 1.0)):
+        clip = np.array([edges_x[4], x1, edges_y[4], edges_y[12], 0.10])
+        clip[4] = dut._plateau_top(clip)
+        uppers.append(dut.interval(clip, dut.flat_cost(clip), BoxFitParams(),
+                                   SensorModelParams())[1][0])
+    assert uppers[0] == uppers[1]
+    assert uppers[1] - 0.12 - _widening(readings) < 0.005
 
 
 def test_a_side_no_reading_sees_is_open_to_the_grids_edge_and_no_further():
@@ -199,8 +229,7 @@ def test_a_side_no_reading_sees_is_open_to_the_grids_edge_and_no_further():
     dut = _Clip(readings, edges_x, edges_y, grid, HeightMapParams())
     clip, cost = dut.search()
     _, upper = dut.interval(clip, cost, BoxFitParams(), SensorModelParams())
-    share = 0.15 * float(np.median(readings.measured)) * np.radians(5.625)
-    out = upper[0] - (clip[1] - clip[0]) - (0.002 + 2 * share)  # both ends' moves
+    out = upper[0] - (clip[1] - clip[0]) - _widening(readings)  # both ends' moves
     assert 0.1 - clip[1] <= out <= 0.1 - clip[1] + 0.01
 
 

@@ -532,7 +532,7 @@ def profile_move(cost, p: np.ndarray, index: int, sign: int, best: float, rise: 
     the move (the height map's clip is searched before its top is refitted), and from `best`
     a cost that falls before it rises never bounds the move (measured: flanges whose length
     came out 10 cm open, which put them in a container two sizes up)."""
-    reach = params.interval_max_m if limit is None else min(limit, params.interval_max_m)
+    reach = params.interval_max_m if limit is None else max(0.0, min(limit, params.interval_max_m))
     lowest = best
 
     def rises(step: float) -> bool:

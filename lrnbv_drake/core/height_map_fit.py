@@ -779,27 +779,29 @@ class _Clip:
 
     def _walled(self, clip: np.ndarray, i: int) -> Callable[[np.ndarray], float]:
         """The cost with side i (0-3) of the clip moved out as a wall: the columns beyond the
-        clip's outermost line on that side at that line's tallest column (no higher than the
-        top). Extended column by column instead, a side whose outermost line is a lone
-        column of a spike or a skirt a few millimetres tall moves out with nothing the
-        readings can see, and bounds nothing (a gripper's width came out 12 cm open). A wall
-        asks what the box fit's interval asks of a box's side."""
+        clip's outermost line on that side at that line's tallest column as `flat_cost` has
+        it (no higher than the top). Extended column by column instead, a side whose outermost
+        line is a lone column of a spike or a skirt a few millimetres tall moves out with
+        nothing the readings can see, and bounds nothing (a gripper's width came out 12 cm
+        open). A wall asks what the box fit's interval asks of a box's side."""
+        heights = np.where(self.plateau, clip[4], self.base)
+        if i >= 2:
+            heights = heights.T
         edges, across_edges = ((self.edges_x, self.edges_y) if i < 2
                                else (self.edges_y, self.edges_x))
         n = len(edges) - 1
         lower_side = i in (0, 2)
-        # The clip's outermost cell on that side (a side on a cell edge keeps the inner cell).
-        line = int(np.clip(np.searchsorted(edges, clip[i], side="right" if lower_side
-                                           else "left") - 1, 0, n - 1))
-        centres = (across_edges[:-1] + across_edges[1:]) / 2
+        # The clip's outermost cell on that side: a side on a cell edge keeps the inner cell,
+        # also when the search's steps left it a rounding error outside the edge.
+        inward = clip[i] + (1e-9 if lower_side else -1e-9)
+        line = int(np.clip(np.searchsorted(edges, inward, side="right") - 1, 0, n - 1))
         low, high = (clip[2], clip[3]) if i < 2 else (clip[0], clip[1])
-        across = np.flatnonzero((centres > low) & (centres < high))
-        base = self.base if i < 2 else self.base.T
+        across = np.flatnonzero((across_edges[1:] > low) & (across_edges[:-1] < high))
         beyond = np.arange(line) if lower_side else np.arange(line + 1, n)
-        walled = base.copy()
+        walled = heights.copy()
         if len(across):
-            height = min(float(base[line, across].max()), float(clip[4]))
-            walled[beyond[:, None], across[None, :]] = height
+            walled[beyond[:, None], across[None, :]] = min(float(heights[line, across].max()),
+                                                           float(clip[4]))
         grid = walled if i < 2 else walled.T
 
         def cost(q: np.ndarray) -> float:
