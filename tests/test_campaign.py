@@ -39,6 +39,7 @@ from lrnbv_drake.experiments.campaign.plan import (
 from lrnbv_drake.experiments.campaign.run import run_campaign
 from lrnbv_drake.experiments.campaign.summary import coverage_curves, episode_row
 from lrnbv_drake.experiments.episode import PLANNERS
+from lrnbv_drake.experiments.report import rounded
 
 TRUE_DIMS = {"horizontal_box": (0.30, 0.20, 0.12), "vertical_box": (0.12, 0.10, 0.25)}
 ALL_PLANNERS = ("lrnbv", "nbv", "heu")
@@ -245,6 +246,9 @@ def test_results_csv_matches_the_reports(synthetic_campaign):
             assert float(row[f"true_{d}"]) == pytest.approx(TRUE_DIMS[row["object"]][i])
             assert float(row[f"abs_err_{d}"]) == pytest.approx(m["abs_dim_errors"][i])
         assert float(row["wall_seconds"]) == 1.0 + trial
+        # The AUC over the most poses any planner took on the object (NBV's 12 + 2 x 4).
+        curve = np.array(m["coverage_curve"]["0.01"])
+        assert float(row["auc_1cm"]) == pytest.approx(coverage_auc(curve, 20))
     # Seeds paired across planners in the CSV too.
     seeds = {}
     for row in rows:
@@ -267,6 +271,28 @@ def test_summary_medians_quartiles_and_u_tests(synthetic_campaign):
     # Width: no error for anyone -> equal constant samples, p = 1, not significant.
     equal = "12.5 | 1 | exact, ties; all values equal"
     assert f"| estimated W (m) | {equal} | {equal} |" in box_tests
+
+
+def test_float_noise_in_a_report_is_rounded_away_before_the_u_tests(tmp_path):
+    """LR-NBV's height error 1e-17 m above the others' (as float arithmetic leaves it): the
+    record, results.csv and report.json hold the same rounded number, and the U test sees
+    equal samples, not LR-NBV ranked above every other planner."""
+    config = _config(tmp_path, names=("horizontal_box",))
+    fake = _fake(config)
+
+    def noisy(scenario, planner, out_dir, replay):
+        report = fake(scenario, planner, out_dir, replay)
+        if "metrics" in report and planner == "lrnbv":
+            report["metrics"]["abs_dim_errors"][2] += 1e-17
+        return report
+    records = run_campaign(config, noisy, progress=False)
+    assert 0.01 + 1e-17 != 0.01
+    assert all(r["metrics"]["abs_dim_errors"][2] == 0.01 for r in records)
+    assert {float(row["abs_err_H"]) for row in _csv(config.out_dir / "results.csv")} == {0.01}
+    summary = (config.out_dir / "summary.md").read_text()
+    line = next(x for x in summary.splitlines() if x.startswith("| abs. H error (m) | n/a")
+                or (x.startswith("| abs. H error (m) |") and "all values equal" in x))
+    assert "*" not in line.split("|")[3]
 
 
 def test_figures_are_drawn(synthetic_campaign):
@@ -475,8 +501,8 @@ def test_ray_backend_runs_the_same_episodes(tmp_path):
         f"{p}__vertical_box__{t}" for t in range(2) for p in ALL_PLANNERS]
     assert [r["campaign"]["status"] for r in records] == ["ok"] * 6
     assert all(r["pid"] != os.getpid() for r in records)  # they ran in Ray's workers
-    assert [r["metrics"] for r in records] == [
-        synthetic_metrics(p, "vertical_box", t) for t in range(2) for p in ALL_PLANNERS]
+    assert [r["metrics"] for r in records] == [  # rounded as report.json is
+        rounded(synthetic_metrics(p, "vertical_box", t)) for t in range(2) for p in ALL_PLANNERS]
     rows = _csv(config.out_dir / "results.csv")
     assert [r["seed"] for r in rows] == [str(r["seed"]) for r in records]
 

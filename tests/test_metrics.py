@@ -284,3 +284,6 @@ def test_poses_to_accuracy_is_the_first_pose_after_which_the_box_stays_within():
     assert poses_to_accuracy(errors * mm, 10 * mm) == 2  # NaN (no estimate) counts as outside
     assert poses_to_accuracy(errors[:4] * mm, 5 * mm) is None  # outside at the end
     assert poses_to_accuracy(np.zeros((0, 3)), 5 * mm) is None
+    # An error of exactly the tolerance, as floats give it (0.30 m for 0.29 m) is within.
+    assert 0.30 - 0.29 > 0.01
+    assert poses_to_accuracy(np.array([[0.30 - 0.29, 0.0, 0.0]]), 0.01) == 1

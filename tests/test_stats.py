@@ -96,6 +96,16 @@ def test_u_test_with_ties_is_exact():
     assert t.significant
 
 
+def test_u_test_with_ties_and_one_value_is_exact_too():
+    """scipy's permutation test wants two values a sample; with one, the p is still the exact
+    one (the normal approximation gave 0.717 for the first pair)."""
+    for a, b in (([1.0], [2, 2, 3, 0]), ([2, 2, 3, 0], [1.0]), ([13.0], [13, 13, 9, 13])):
+        t = mann_whitney(a, b)
+        assert t.method == "exact, ties"
+        assert (t.u, t.p) == pytest.approx(_enumerated_p(a, b))
+    assert mann_whitney([1.0], [2, 2, 3, 0]).p == pytest.approx(0.8)  # 2 x 2 of 5 splits
+
+
 def test_u_test_equal_constant_samples_give_p_one():
     t = mann_whitney([13] * 5, [13] * 5)
     assert (t.u, t.p) == (12.5, 1.0)

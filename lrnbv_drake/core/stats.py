@@ -109,10 +109,15 @@ def mann_whitney(a: Iterable[float], b: Iterable[float]) -> MannWhitney:
     pooled = np.concatenate([x, y])
     ties = len(np.unique(pooled)) < len(pooled)
     splits = math.comb(len(pooled), len(x))
+    p_value = None
     if ties and splits <= MAX_EXACT_SPLITS and min(len(x), len(y)) >= 2:
-        # n_resamples >= the number of distinct splits makes scipy enumerate them all (scipy's
-        # permutation test wants two values per sample; one value is never significant anyway).
+        # n_resamples >= the number of distinct splits makes scipy enumerate them all.
         method, label = stats.PermutationMethod(n_resamples=MAX_EXACT_SPLITS), "exact, ties"
+    elif ties and min(len(x), len(y)) == 1:
+        # scipy's permutation test wants two values per sample; with one, the splits are
+        # which pooled value it is, few enough to enumerate here.
+        method, label = "asymptotic", "exact, ties"
+        p_value = _one_value_p(x, y)
     elif ties or min(len(x), len(y)) > 8:
         method, label = "asymptotic", "normal approximation"
     else:
@@ -125,8 +130,26 @@ def mann_whitney(a: Iterable[float], b: Iterable[float]) -> MannWhitney:
     if smallest >= ALPHA:
         notes.append(f"n = {len(x)} and {len(y)} cannot reach p < {ALPHA:g} "
                      f"(smallest p {smallest:.2g})")
-    return MannWhitney(len(x), len(y), float(result.statistic), float(result.pvalue), label,
+    return MannWhitney(len(x), len(y), float(result.statistic),
+                       float(result.pvalue if p_value is None else p_value), label,
                        "; ".join(notes))
+
+
+def _one_value_p(x: np.ndarray, y: np.ndarray) -> float:
+    """The exact two-sided p of the U test when one sample holds one value: each pooled value
+    in turn is that sample's, all equally likely; twice the smaller tail, capped at 1, as
+    scipy's permutation test gives it for larger samples."""
+    pooled = np.concatenate([x, y])
+    single = 0 if len(x) == 1 else len(x)
+
+    def u_of_a(k: int) -> float:
+        others = np.delete(pooled, k)
+        u = float(np.sum(others < pooled[k]) + 0.5 * np.sum(others == pooled[k]))
+        return u if len(x) == 1 else len(others) - u  # U of a + U of b = n_a n_b
+
+    us = np.array([u_of_a(k) for k in range(len(pooled))])
+    observed = u_of_a(single)
+    return min(1.0, 2.0 * min(np.mean(us <= observed), np.mean(us >= observed)))
 
 
 Row = Mapping[str, object]
