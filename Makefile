@@ -43,3 +43,4 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) out
+	find lrnbv_drake -name __pycache__ -prune -exec rm -rf {} +

@@ -1,0 +1,69 @@
+"""The numba cache folder per version of the source (lrnbv_drake/numba_cache.py)."""
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import lrnbv_drake
+from lrnbv_drake.numba_cache import cache_dir, source_hash
+
+PACKAGE = Path(lrnbv_drake.__file__).parent
+
+CALLEE = "import numba\n\n@numba.njit(cache=True)\ndef rule(x):\n    return x + {}\n"
+CALLER = textwrap.dedent("""\
+    import numba
+    from callee import rule
+
+    @numba.njit(cache=True)
+    def kernel(x):
+        return rule(x) * 10
+    """)
+RUN = textwrap.dedent("""\
+    import os, sys
+    from pathlib import Path
+    from lrnbv_drake.numba_cache import cache_dir
+    os.environ["NUMBA_CACHE_DIR"] = str(cache_dir(Path(sys.argv[1])))
+    sys.path.insert(0, sys.argv[1])
+    from caller import kernel
+    print(kernel(1))
+    """)
+
+
+def _kernel_output(folder: Path) -> str:
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    return subprocess.run([sys.executable, "-c", RUN, str(folder)], capture_output=True,
+                          text=True, check=True, env=env).stdout.strip()
+
+
+def test_a_kernel_sees_an_edit_of_the_kernel_it_calls_in_another_file(tmp_path):
+    """numba re-compiles a cached kernel when its own file changes, not when a kernel it calls
+    from another file does; with the folder keyed by every file, the edit is seen."""
+    (tmp_path / "caller.py").write_text(CALLER)
+    (tmp_path / "callee.py").write_text(CALLEE.format(1))
+    assert _kernel_output(tmp_path) == "20"  # compiled and cached
+    assert _kernel_output(tmp_path) == "20"  # from the cache
+    (tmp_path / "callee.py").write_text(CALLEE.format(2))
+    assert _kernel_output(tmp_path) == "30"
+
+
+def test_the_hash_follows_every_file_and_only_the_source(tmp_path):
+    (tmp_path / "a.py").write_text("x = 1\n")
+    first = source_hash(tmp_path)
+    (tmp_path / "notes.txt").write_text("not source")
+    assert source_hash(tmp_path) == first
+    (tmp_path / "a.py").write_text("x = 2\n")
+    assert source_hash(tmp_path) != first
+    assert cache_dir(tmp_path) == tmp_path / "__pycache__" / f"numba-{source_hash(tmp_path)}"
+
+
+def test_importing_the_package_chooses_the_folder_unless_one_is_chosen():
+    code = "import os, lrnbv_drake; print(os.environ['NUMBA_CACHE_DIR'])"
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    chosen = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            check=True, env=env).stdout.strip()
+    assert chosen == str(cache_dir(PACKAGE))
+    kept = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True, env=env | {"NUMBA_CACHE_DIR": "/tmp/mine"}).stdout.strip()
+    assert kept == "/tmp/mine"
