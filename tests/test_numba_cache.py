@@ -48,6 +48,34 @@ def test_a_kernel_sees_an_edit_of_the_kernel_it_calls_in_another_file(tmp_path):
     assert _kernel_output(tmp_path) == "30"
 
 
+DEVICE = textwrap.dedent("""\
+    import sys
+    import numpy as np
+    from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams
+    from lrnbv_drake.core.sensor_calibration import edge_scene_depths
+    from lrnbv_drake.core.tof_device import DeviceBehaviour, device_readings
+    p = SensorModelParams(noise=NoiseModel(0, 0))
+    d = edge_scene_depths(p.geometry, 8, 0.0, 400.0, 700.0)
+    for order, merge in [("closest", 0.0), ("strongest", 600.0)][:int(sys.argv[1])]:
+        frame = device_readings(d, p, DeviceBehaviour(target_order=order, merge_mm=merge),
+                                np.random.default_rng(0))
+    print(int(frame.status[0, 0]))
+    """)
+
+
+def test_the_device_kernels_load_in_any_order_without_crashing(tmp_path):
+    """The ideal device (`sensor._cluster_kernel`) compiled in one process, the datasheet one
+    (`tof_device._targets_kernel`) in a second that loaded the first from the cache: a third
+    that loaded both crashed (SIGSEGV) while the latter was cached too. It is not."""
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["NUMBA_CACHE_DIR"] = str(tmp_path)
+    for kernels in (1, 2, 2):
+        run = subprocess.run([sys.executable, "-c", DEVICE, str(kernels)], capture_output=True,
+                             text=True, env=env)
+        assert run.returncode == 0, run.stderr[-2000:]
+        assert run.stdout.strip() == "5"
+
+
 def test_the_hash_follows_every_file_and_only_the_source(tmp_path):
     (tmp_path / "a.py").write_text("x = 1\n")
     first = source_hash(tmp_path)

@@ -237,7 +237,10 @@ def bleed_samples(depth: np.ndarray, signal: np.ndarray, reflectance: np.ndarray
             _with_neighbours(reflectance, 0.0), foreign)
 
 
-@numba.njit(cache=True)
+# Not cached on disk, nor `_targets_kernel`: loaded from numba's cache beside the cached
+# `sensor` kernels, they crashed the process (SIGSEGV; tests/test_numba_cache.py). Compiling
+# them costs 1.5 s once per process that uses the datasheet device or a merging model.
+@numba.njit
 def sorted_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, merge_m,
                   strongest, merged_mode, signal_limit, min_count, out):
     """One zone, its samples sorted by depth (inf, where nothing returns, last): groups them
@@ -315,7 +318,7 @@ def sorted_target(depth, signal, reflectance, foreign, own_count, gap_m, slope, 
     out[3] = best_signal
 
 
-@numba.njit(cache=True)
+@numba.njit
 def _targets_kernel(depth, signal, reflectance, foreign, own_count, gap_m, slope, merge_m,
                     strongest, merged_mode, signal_limit, min_count, out):
     m = depth.shape[1]
