@@ -18,11 +18,12 @@ from pydrake.common.yaml import yaml_dump_typed
 
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.mapping.occupancy_map import OccupancyMap
 from lrnbv_drake.core.planning.heu import heu_poses
 from lrnbv_drake.core.robot_safety import RobotFault
 from lrnbv_drake.core.sensor import ToFFrame
 from lrnbv_drake.drivers.tof_serial import SensorError, SensorTimeout, ToFSerialReader
-from lrnbv_drake.experiments import session
+from lrnbv_drake.experiments import episode, session
 from lrnbv_drake.experiments.episode import run_episode
 from lrnbv_drake.experiments.recording import AcquisitionJournal, RecordingError
 from lrnbv_drake.experiments.session import SESSION_FILE, SessionError, resume, run_session
@@ -262,6 +263,44 @@ def test_a_report_that_fails_after_motion_is_not_called_nothing_moved(
     assert "nothing moved" not in err
     assert "ValueError: the catalogue changed under the session" in err
     assert "2 of 2 acquisitions in acquisitions.jsonl" in err and _journal_lines(out) == 2
+
+
+def test_a_map_export_that_fails_still_stops_the_arm_and_writes_the_rest(
+        scenario, q_first_pose, tmp_path, monkeypatch, capsys):
+    """Saving the map raises something other than an OSError (pyoctomap's RuntimeError): the
+    arm is still stopped (servoStop before the script stops), frames.npz and report.json are
+    still written, and the CLI says what failed (exit 1), not a traceback."""
+    arm = fake_rtde.FakeArm(q_first_pose)
+    fake_rtde.install(monkeypatch, arm)
+
+    def broken_export(self, path):
+        raise RuntimeError("pyoctomap refused to prune node")
+    monkeypatch.setattr(OccupancyMap, "export_octomap", broken_export)
+    out = tmp_path / "out"
+    assert _hardware_heu(tmp_path, out) == 1
+    err = capsys.readouterr().err
+    assert "Saving what was captured failed: RuntimeError: pyoctomap refused" in err
+    names = [n for n in arm.names() if n != "kickWatchdog"]
+    assert "servoStop" in names[names.index("servoJ"):names.index("stopScript")]
+    assert (out / "frames.npz").exists() and (out / "report.json").exists()
+    assert _journal_lines(out) >= 1
+
+
+def test_a_failure_while_the_episode_is_built_closes_the_robot(scenario, tmp_path, monkeypatch):
+    """The robot is connected and the control script uploaded before the rest of the diagram
+    is built: if that fails, the script is stopped and both interfaces closed."""
+    arm = fake_rtde.FakeArm(kinematics.HOME.copy())
+    fake_rtde.install(monkeypatch, arm)
+
+    def broken_policy(*args, **kwargs):
+        raise ValueError("the policy could not be built")
+    monkeypatch.setattr(episode, "make_policy", broken_policy)
+    monkeypatch.setattr(session, "_preflight", lambda *args: None)
+    with pytest.raises(ValueError, match="the policy could not be built"):
+        run_session(scenario, "heu", tmp_path / "out", confirm=lambda text: True)
+    names = arm.names()
+    assert "stopScript" in names and "disconnect-control" in names
+    assert "servoJ" not in names
 
 
 def test_a_bad_catalogue_is_refused_before_the_arm_is_reached(scenario, tmp_path, monkeypatch,

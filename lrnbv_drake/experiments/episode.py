@@ -104,8 +104,21 @@ def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = No
     else is the same diagram. `history` goes to the loop (an episode to carry on); `run_loop`
     restores the map and the policy to match it.
     """
-    builder = DiagramBuilder()
     cell = make_cell(scenario, meshcat, hardware=hardware)
+    try:
+        return _around_cell(cell, scenario, planner, meshcat, history)
+    except BaseException:
+        # On hardware the robot is connected and the control script uploaded: a failure (or
+        # Ctrl-C) while building the rest must not leave them, nor the watchdog's keeper.
+        if cell.hardware is not None:
+            cell.hardware.close()
+        raise
+
+
+def _around_cell(cell: Cell, scenario: Scenario, planner: str, meshcat: Meshcat | None,
+                 history: EpisodeLog | None) -> EpisodeDiagram:
+    """`build_episode`'s diagram around a cell already made."""
+    builder = DiagramBuilder()
     builder.AddNamedSystem("cell", cell.diagram)
     motion = MotionPlanner(scenario)
     policy = make_policy(planner, scenario, motion, cell.models.placed_object)

@@ -378,6 +378,8 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
             monitors[-1].record(context)
         except OSError as e:
             problems.append(f"appending to {JOURNAL_FILE} failed: {e}")
+        except Exception as e:  # noqa: BLE001 - e.g. the map's export: the arm stops anyway
+            problems.append(f"saving what was captured failed: {type(e).__name__}: {e}")
         if fault in (None, "interrupted", "sensor", "error"):
             try:
                 parts.cell.hardware.robot.servo_stop(scenario.hardware.stop_deceleration)
