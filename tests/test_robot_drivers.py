@@ -22,6 +22,7 @@ from lrnbv_drake.core.robot_safety import (
     read_status,
     tcp_pose_error,
 )
+from lrnbv_drake.drivers import rtde_client
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
 from lrnbv_drake.drivers.rtde_client import FLAG_UPLOAD_SCRIPT, FLAG_UPPER_RANGE_REGISTERS
 from lrnbv_drake.drivers.rtde_robot import CLOSE_TIMEOUT, RtdeRobot
@@ -189,6 +190,34 @@ def test_a_crashed_client_is_a_lost_link(monkeypatch):
     robot.disconnect()
     assert arm.names()[-2:] == ["dashboard-stop", "disconnect-dashboard"]
     assert not arm.program_running
+
+
+def test_a_getter_that_raises_while_closing_counts_as_a_broken_link(monkeypatch):
+    """ur_rtde's receive getters can raise on a broken link: closing then asks the dashboard
+    to stop the program instead of taking the error for an answer."""
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+    robot = RtdeRobot("10.0.0.5")
+
+    def broken():
+        raise RuntimeError("RTDEReceiveInterface: not connected")
+    monkeypatch.setattr(arm, "timestamp", broken)
+    robot.disconnect()
+    assert "dashboard-stop" in arm.names() and not arm.program_running
+
+
+def test_a_close_that_fails_in_the_client_still_stops_the_program(monkeypatch):
+    """The client answers `close` with an error (it may have skipped stopScript): a fresh
+    client asks the dashboard to stop, as for a crashed one."""
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+
+    def broken_close(self):
+        raise RuntimeError("the close failed half-way")
+    monkeypatch.setattr(rtde_client.Clients, "close", broken_close)
+    robot = RtdeRobot("10.0.0.5")
+    robot.disconnect()
+    assert "dashboard-stop" in arm.names() and not arm.program_running
 
 
 # --- The systems alone ----------------------------------------------------------------------

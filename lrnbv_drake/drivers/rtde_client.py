@@ -135,15 +135,19 @@ class Clients:
 
     def link_alive(self) -> bool:
         """Whether the controller's clock still advances (ur_rtde's isConnected turns false
-        about 2.5 s after a silent drop; the getters keep the last package forever)."""
-        if self.receive is None or not self.receive.isConnected():
+        about 2.5 s after a silent drop; the getters keep the last package forever). A getter
+        that raises says the link is broken: not alive, so closing asks the dashboard."""
+        try:
+            if self.receive is None or not self.receive.isConnected():
+                return False
+            first = self.receive.getTimestamp()
+            deadline = time.monotonic() + ALIVE_WINDOW
+            while time.monotonic() < deadline:
+                if self.receive.getTimestamp() != first:
+                    return True
+                time.sleep(0.002)
+        except Exception:  # any error of ur_rtde's here means a broken link
             return False
-        first = self.receive.getTimestamp()
-        deadline = time.monotonic() + ALIVE_WINDOW
-        while time.monotonic() < deadline:
-            if self.receive.getTimestamp() != first:
-                return True
-            time.sleep(0.002)
         return False
 
     def close(self) -> dict[str, bool]:

@@ -206,8 +206,10 @@ class RtdeRobot:
         if not failed:
             try:
                 self._link.request("close", timeout=CLOSE_TIMEOUT)
-            except (RuntimeError, ValueError):
-                failed = self._link.failed  # killed below
+            except (RuntimeError, ValueError) as e:
+                # Killed below; an error answer is no clean close either: the client may have
+                # skipped stopScript, so the dashboard is asked too.
+                failed = self._link.failed or str(e)
         self._link.kill()
         if failed and self.control:
             link = spawn_client()

@@ -378,7 +378,7 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
             monitors[-1].record(context)
         except OSError as e:
             problems.append(f"appending to {JOURNAL_FILE} failed: {e}")
-        except Exception as e:  # noqa: BLE001 - e.g. the map's export: the arm stops anyway
+        except Exception as e:  # e.g. the map's export: the arm stops anyway
             problems.append(f"saving what was captured failed: {type(e).__name__}: {e}")
         if fault in (None, "interrupted", "sensor", "error"):
             try:
