@@ -213,6 +213,7 @@ def test_a_close_that_fails_in_the_client_still_stops_the_program(monkeypatch):
     fake_rtde.install(monkeypatch, arm)
 
     def broken_close(self):
+        self.closing.set()  # as the real close does first: the watchdog's keeper stops
         raise RuntimeError("the close failed half-way")
     monkeypatch.setattr(rtde_client.Clients, "close", broken_close)
     robot = RtdeRobot("10.0.0.5")
