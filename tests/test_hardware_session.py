@@ -7,6 +7,7 @@ nothing asserts on how long anything took."""
 
 from __future__ import annotations
 
+import gc
 import json
 import shutil
 import time
@@ -51,6 +52,16 @@ def _hardware_heu(tmp_path, out, *flags) -> int:
 def _journal_lines(out) -> int:
     path = out / JOURNAL_FILE
     return len(path.read_text().splitlines()) if path.exists() else 0
+
+
+@pytest.fixture(autouse=True)
+def _garbage_collected_here():
+    """Collects each test's garbage on the main thread. A session that failed keeps its
+    diagram and Meshcat in a cycle through the error's traceback, and Drake aborts the
+    process when a Meshcat is destroyed on another thread, which the next collection may be
+    (a later test's reader thread was, about one run in five on two workers)."""
+    yield
+    gc.collect()
 
 
 @pytest.fixture(scope="module")
