@@ -53,6 +53,26 @@ def test_a_failing_read_keeps_the_joints_and_reports_the_link_lost():
     assert "watchdog" in str(fault)
 
 
+@pytest.mark.parametrize("field", ["q", "qd", "tcp_pose", "controller_time", "speed_scaling",
+                                   "target_speed_fraction"])
+def test_a_non_finite_reading_is_no_reading(field):
+    """A NaN passes every comparison (a NaN clock is never stale, a NaN speed scaling no
+    fault): a reading holding one counts as failed, the joints kept from the last good one."""
+    good = PlaybackRobot(HOME).read()
+    value = getattr(good, field)
+    bad = np.where(np.arange(np.size(value)) == 0, np.nan, value) if np.ndim(value) \
+        else np.nan
+
+    class _Nan(PlaybackRobot):
+        def read(self):
+            return dc.replace(good, **{field: bad})
+    previous = read_status(PlaybackRobot(HOME + 0.1), 0.0, Ur5eStatus())
+    status = read_status(_Nan(HOME), 0.1, previous)
+    assert not status.connected and f"non-finite {field}" in status.error
+    np.testing.assert_allclose(status.q, HOME + 0.1)
+    assert status.fault("10.0.0.5").kind == "disconnected"
+
+
 class _Frozen(PlaybackRobot):
     def read(self):
         return dc.replace(super().read(), controller_time=42.0)
@@ -115,6 +135,20 @@ def test_the_tracking_check_allows_the_servo_lag_of_a_moving_command_only():
     still = limits.check(HOME, HOME, np.zeros(6), HOME + 0.06, PERIOD)
     assert still.kind == "tracking" and "0.050 rad the servo may lag at 0.00 rad/s" in \
         still.reason
+
+
+def test_a_non_finite_previous_command_speed_or_measurement_refuses_the_command():
+    """Compared with a NaN, a 1 rad step and a 1 rad tracking error both pass: refused."""
+    limits = open_limits(speed=1.0)
+    jump = HOME + np.r_[1.0, 0, 0, 0, 0, 0]
+    nan = np.r_[np.nan, 0, 0, 0, 0, 0]
+    assert limits.check(jump, HOME, np.zeros(6), HOME, PERIOD).kind == "refused"  # the step
+    for previous, speed, measured, words in (
+            (HOME + nan, np.zeros(6), HOME, "previous command"),
+            (HOME, nan, HOME, "previous speed"),
+            (HOME, np.zeros(6), HOME + nan, "measured position")):
+        refusal = limits.check(HOME, previous, speed, measured, PERIOD)
+        assert refusal.kind == "refused" and words in refusal.reason
 
 
 @settings(max_examples=25, deadline=None)

@@ -124,6 +124,8 @@ def test_make_cell_hardware_streams_simulated_frames_through_the_serial_driver()
     (_dry("max_speed_fraction: 0"), "hardware.max_speed_fraction"),
     (_dry("watchdog_frequency: -1"), "hardware.watchdog_frequency"),
     (_dry("watchdog_frequency: 0"), "hardware.watchdog_frequency"),
+    (_dry("rtde_frequency: 10"), "hardware.rtde_frequency"),
+    (_dry("rtde_frequency: .nan"), "hardware.rtde_frequency"),
     (_dry("joint_lower: [0, 0, 0, 0, 0]"), "hardware.joint_lower"),
     (_dry("joint_upper: [7, 1, 1, 1, 1, 1]"), "hardware.joint_lower/upper"),
     (_dry("joint_lower: [1, -1, -1, -1, -1, -1], joint_upper: [0, 1, 1, 1, 1, 1]"),

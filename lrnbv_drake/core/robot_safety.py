@@ -234,6 +234,13 @@ def read_status(robot: RobotInterface, time: float, previous: Ur5eStatus,
     if np.shape(reading.q) != (6,):
         return dc.replace(previous, time=time, connected=False, qd=np.zeros(6),
                           error=f"the controller sent {np.size(reading.q)} joint positions")
+    # A NaN would pass every comparison below and in `check` (a NaN clock is never stale, a
+    # NaN speed scaling no fault, a NaN joint no tracking error): no reading at all instead.
+    for name in ("q", "qd", "tcp_pose", "controller_time", "speed_scaling",
+                 "target_speed_fraction"):
+        if not np.all(np.isfinite(np.asarray(getattr(reading, name), float))):
+            return dc.replace(previous, time=time, connected=False, qd=np.zeros(6),
+                              error=f"the controller sent a non-finite {name}")
     fresh_since = time if reading.controller_time != previous.controller_time \
         else previous.fresh_since
     status = Ur5eStatus(time=time, fresh_since=fresh_since, **{
@@ -300,6 +307,12 @@ class SafetyLimits:
         names = kinematics.JOINT_NAMES
         if not np.all(np.isfinite(q)):
             return Refusal("refused", f"the command {q.tolist()} is not finite")
+        for name, value in (("previous command", q_previous), ("previous speed", v_previous),
+                            ("measured position", q_measured)):
+            if value is not None and not np.all(np.isfinite(np.asarray(value, float))):
+                # Compared with a NaN, any step passes: refuse rather than check nothing.
+                return Refusal("refused", f"the {name} {np.asarray(value).tolist()} is not "
+                                          f"finite")
         outside = np.flatnonzero((q < self.joint_lower) | (q > self.joint_upper))
         if outside.size:
             i = outside[0]

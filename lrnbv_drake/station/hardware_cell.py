@@ -83,6 +83,11 @@ def check_hardware_config(scenario: Scenario, *, addresses: bool = True) -> None
         if not getattr(hw, name) >= 0:
             raise ScenarioError(f"field 'hardware.{name}': must be >= 0, got "
                                 f"{getattr(hw, name)}")
+    if not (hw.rtde_frequency == -1 or 125 <= hw.rtde_frequency <= 500):
+        # Slower, most data packages are older than the sender's freshness limit (MAX_READING_AGE,
+        # 0.05 s), which then skips its tracking check, and a live link looks dead on closing.
+        raise ScenarioError(f"field 'hardware.rtde_frequency': expected -1 (the controller's "
+                            f"rate) or 125 to 500 Hz, got {hw.rtde_frequency}")
     if not 0.03 <= hw.servo_lookahead_time <= 0.2:
         raise ScenarioError(f"field 'hardware.servo_lookahead_time': servoJ takes 0.03 to 0.2 "
                             f"s, got {hw.servo_lookahead_time}")
