@@ -122,6 +122,13 @@ def _perturbed_table(seed: int) -> np.ndarray:
     return (uniform + rng.uniform(-1.0, 1.0, uniform.shape)).reshape(-1)
 
 
+def test_a_noise_measured_from_one_frame_is_refused():
+    one = {"distance_mm": np.full((1, 8, 8), 500), "status": np.full((1, 8, 8), 5),
+           "sigma_mm": np.full((1, 8, 8), 3)}
+    with pytest.raises(ValueError, match="min_frames must be at least 2"):
+        zone_noise(one, min_frames=1)
+
+
 def test_zone_directions_are_recovered_within_0_3_deg():
     """A table of known, irregular zone centres, the datasheet device's detection (any
     overlap bright enough), a 1.7 deg target."""

@@ -124,7 +124,16 @@ def test_characterize_names_the_file_and_the_arrays_it_misses(recordings, tmp_pa
     assert main(["sensor", "characterize", "--target", str(recordings["target"]),
                  "--target", str(four), "--out", str(out)]) == 2
     assert f"{four}: the recording has 4x4 zones" in capsys.readouterr().err
+    # A flag given twice keeps both files: the bad one first is still read.
+    assert main(["sensor", "characterize", "--target", str(four),
+                 "--target", str(recordings["target"]), "--out", str(out)]) == 2
+    assert f"{four}: the recording has 4x4 zones" in capsys.readouterr().err
     assert not out.exists()
+    # One frame has no spread: a noise law fitted from it would be zero.
+    with pytest.raises(SystemExit):
+        main(["sensor", "characterize", "--frames", str(recordings["flat"]), "--min-frames",
+              "1", "--out", str(out)])
+    assert "--min-frames: expected an integer >= 2, got '1'" in capsys.readouterr().err
 
 
 def test_the_bench_is_seeded():

@@ -21,6 +21,11 @@ def positive_int(text: str) -> int:
     return _int_at_least(text, 1, "a positive integer")
 
 
+def spread_count(text: str) -> int:
+    """A number of samples a spread is measured from: 2, 3, ..."""
+    return _int_at_least(text, 2, "an integer >= 2")
+
+
 def seed(text: str) -> int:
     """A random seed: numpy's generators take 0, 1, ..."""
     return _int_at_least(text, 0, "an integer >= 0")

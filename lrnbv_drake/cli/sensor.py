@@ -24,6 +24,7 @@ import math
 import sys
 from pathlib import Path
 
+from lrnbv_drake.cli.arg_types import spread_count
 from lrnbv_drake.core.sensor import STATUS_NO_TARGET, ToFFrame
 from lrnbv_drake.core.sensor_calibration import MixedZoneFit
 from lrnbv_drake.drivers.tof_serial import SensorError, SerialStats
@@ -218,22 +219,23 @@ def add_sensor_commands(subparsers: argparse._SubParsersAction) -> None:
     p = commands.add_parser("characterize",
                             help="fit the sensor model (noise, zone directions, mixed zones) "
                                  "to calibration recordings")
-    p.add_argument("--frames", nargs="+", default=[], metavar="FILE",
+    p.add_argument("--frames", nargs="+", action="extend", default=[], metavar="FILE",
                    help="flat-board recordings (.npz, or a .tof journal): one per distance, "
                         "or holding each frame's distance (board_mm)")
-    p.add_argument("--distance-mm", nargs="+", type=float, metavar="D",
+    p.add_argument("--distance-mm", nargs="+", action="extend", type=float, metavar="D",
                    help="known perpendicular board distance of each --frames recording; the "
                         "fit then uses it for the zones on the board and reports the bias")
-    p.add_argument("--target", nargs="+", default=[], metavar="FILE",
+    p.add_argument("--target", nargs="+", action="extend", default=[], metavar="FILE",
                    help="small-target recordings (.npz with target_deg, target_mm per frame)")
-    p.add_argument("--edge", nargs="+", default=[], metavar="FILE",
+    p.add_argument("--edge", nargs="+", action="extend", default=[], metavar="FILE",
                    help="edge-sweep recordings (.npz with edge_deg, near_mm, far_mm per "
                         "frame)")
     p.add_argument("--out", type=Path, required=True,
                    help="scenario YAML to write (merged into it if it exists; its sensor "
                         "section is the model refined, e.g. its zone flips)")
-    p.add_argument("--min-frames", type=int, default=10,
-                   help="valid frames a zone needs to count in the noise fit (default 10)")
+    p.add_argument("--min-frames", type=spread_count, default=10,
+                   help="valid frames a zone needs to count in the noise fit (default 10, "
+                        "at least 2: one frame has no spread)")
 
     p = commands.add_parser("simulate",
                             help="make the calibration recordings with the simulated device")

@@ -62,6 +62,9 @@ def zone_noise(recording: dict[str, np.ndarray], min_frames: int = 10,
     frames valid (a zone that flickers between surfaces or in and out of range measures
     something other than noise).
     """
+    if min_frames < 2:
+        raise ValueError(f"min_frames must be at least 2 (one frame has no spread), got "
+                         f"{min_frames}")
     d = recording["distance_mm"].astype(np.float64)
     valid = np.isin(recording["status"], VALID_STATUSES) & (d > 0)
     n = valid.sum(axis=0)
