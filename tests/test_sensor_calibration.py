@@ -25,6 +25,7 @@ from lrnbv_drake.core.sensor_calibration import (
     MERGED,
     NEAR,
     NONE,
+    _fit_min_share,
     edge_scene_depths,
     edge_steps,
     fit_mixed_zone_rule,
@@ -127,6 +128,16 @@ def test_a_noise_measured_from_one_frame_is_refused():
            "sigma_mm": np.full((1, 8, 8), 3)}
     with pytest.raises(ValueError, match="min_frames must be at least 2"):
         zone_noise(one, min_frames=1)
+
+
+def test_a_device_switching_above_half_a_zone_is_fitted_at_half():
+    """A single min_share for both boards cannot say "near from 0.75, far below": above 0.5
+    the model would predict no target in between, so the fit stops at 0.5."""
+    share = np.linspace(0.05, 0.95, 19)
+    observed = np.where(share >= 0.75, NEAR, FAR)
+    assert _fit_min_share(share, observed, 0.25) == 0.5
+    assert _fit_min_share(share, np.where(share > 0.39, NEAR, FAR), 0.25) == \
+        pytest.approx(0.375)  # below half: between the two observed shares
 
 
 def test_zone_directions_are_recovered_within_0_3_deg():

@@ -379,7 +379,11 @@ class MixedZoneFit:
 
 def _fit_min_share(share: np.ndarray, observed: np.ndarray, default: float) -> float:
     """The share above which a zone reports the near board, from zones that report either
-    board alone: the threshold between two observed shares that misclassifies fewest."""
+    board alone: the threshold between two observed shares that misclassifies fewest, at
+    most 0.5. The model's rule asks the nearest surface holding `min_share` of the zone, the
+    same of both boards: above 0.5 neither holds it between 1 - min_share and min_share, and
+    the model predicts no target where the device reports the far board (a device switching
+    at 0.75: a fit of 0.69 agreed on 54 % of the mixed zones, 0.5 on 69 %)."""
     keep = (observed == NEAR) | (observed == FAR)
     s, near = share[keep], observed[keep] == NEAR
     if not (near.any() and (~near).any()):
@@ -388,7 +392,7 @@ def _fit_min_share(share: np.ndarray, observed: np.ndarray, default: float) -> f
     cuts = np.concatenate([[levels[0] / 2], (levels[:-1] + levels[1:]) / 2,
                            [(levels[-1] + 1) / 2]])
     errors = [np.sum(near != (s >= t)) for t in cuts]
-    return float(cuts[int(np.argmin(errors))])
+    return min(float(cuts[int(np.argmin(errors))]), 0.5)
 
 
 def fit_mixed_zone_rule(steps: EdgeSteps, params: SensorModelParams) -> MixedZoneFit:
