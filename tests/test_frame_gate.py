@@ -44,3 +44,9 @@ def test_silence_is_measured_from_the_last_new_frame_with_a_longer_first_allowan
     assert not dut.update(s, 1.9, _frame(5, 50), STILL).timed_out
     r = dut.update(s, 2.1, _frame(5, 50), STILL)
     assert r.timed_out and abs(r.silence - 1.1) < 1e-12
+
+
+def test_a_speed_that_is_not_a_number_counts_as_moving():
+    s = dut.update(FrameGate.start(0.0), 1.0, _frame(1, 10), STILL).state
+    s = dut.update(s, 1.50, _frame(1, 10), np.r_[np.nan, 0, 0, 0, 0, 0]).state
+    assert dut.update(s, 1.55, _frame(2, 20), STILL).frame is None  # as after MOVING

@@ -56,7 +56,8 @@ class FrameGate:
     def update(self, state: GateState, t: float, frame: ToFFrame,
                joint_speeds: np.ndarray) -> GateResult:
         """Looks at the sensor's current `frame` and the arm's `joint_speeds` at time t."""
-        moving = float(np.max(np.abs(joint_speeds))) > self.still_speed
+        # Still only if every speed is known to be low: a NaN speed counts as moving.
+        moving = not bool(np.all(np.abs(joint_speeds) <= self.still_speed))
         t_moving = t if moving else state.t_moving
         key = (frame.sequence, frame.timestamp_us)
         if frame.sequence != 0 and key != state.last_key:
