@@ -31,8 +31,13 @@ RUN = textwrap.dedent("""\
     """)
 
 
+def _environment() -> dict[str, str]:
+    """This process's environment without a chosen numba cache."""
+    return {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+
+
 def _kernel_output(folder: Path) -> str:
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env = _environment()
     return subprocess.run([sys.executable, "-c", RUN, str(folder)], capture_output=True,
                           text=True, check=True, env=env).stdout.strip()
 
@@ -67,8 +72,7 @@ def test_the_device_kernels_load_in_any_order_without_crashing(tmp_path):
     """The ideal device (`sensor._cluster_kernel`) compiled in one process, the datasheet one
     (`tof_device._targets_kernel`) in a second that loaded the first from the cache: a third
     that loaded both crashed (SIGSEGV) while the latter was cached too. It is not."""
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    env["NUMBA_CACHE_DIR"] = str(tmp_path)
+    env = _environment() | {"NUMBA_CACHE_DIR": str(tmp_path)}
     for kernels in (1, 2, 2):
         run = subprocess.run([sys.executable, "-c", DEVICE, str(kernels)], capture_output=True,
                              text=True, env=env)
@@ -88,7 +92,7 @@ def test_the_hash_follows_every_file_and_only_the_source(tmp_path):
 
 def test_importing_the_package_chooses_the_folder_unless_one_is_chosen():
     code = "import os, lrnbv_drake; print(os.environ['NUMBA_CACHE_DIR'])"
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env = _environment()
     chosen = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             check=True, env=env).stdout.strip()
     assert chosen == str(cache_dir(PACKAGE))

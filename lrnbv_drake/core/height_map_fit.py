@@ -822,7 +822,7 @@ class _Clip:
             for k, sign in enumerate((outward, -outward)):
                 cost, limit = self.flat_cost, None
                 if i < 4 and k == 0:
-                    cost, limit = self._walled(clip, i), max(abs(grid_edges[i] - clip[i]), 0.0)
+                    cost, limit = self._walled(clip, i), abs(grid_edges[i] - clip[i])
                 moves[i, k] = profile_move(cost, clip, i, sign, best, rise, fit_params, limit)
         share = (fit_params.share_tolerance * float(np.median(self.readings.measured))
                  * math.radians(model.geometry.zone_deg))

@@ -82,6 +82,11 @@ def _count(value: Any) -> int | float:
     return math.nan if value is None else int(value)
 
 
+def _curve(values: Sequence[Any]) -> np.ndarray:
+    """A coverage curve from a report, NaN for a missing value."""
+    return np.array([_num(v) for v in values])
+
+
 def _three(values: Sequence[Any] | None) -> list[float]:
     return [_num(v) for v in values] if values else [math.nan] * 3
 
@@ -94,7 +99,7 @@ def episode_row(record: dict[str, Any], auc_budget: int | None = None) -> dict[s
     metrics = record.get("metrics") or {}
     coverage, auc = metrics.get("coverage") or {}, metrics.get("auc") or {}
     if auc_budget is not None and metrics.get("coverage_curve"):
-        auc = {t: coverage_auc(np.array([_num(v) for v in curve]), auc_budget)
+        auc = {t: coverage_auc(_curve(curve), auc_budget)
                for t, curve in metrics["coverage_curve"].items()}
     x, y, yaw = fields["object_pose"]
     row = {
@@ -157,8 +162,7 @@ def coverage_curves(records: Iterable[dict[str, Any]]) -> dict[tuple[str, str], 
         if fields["status"] != "ok" or not metrics:
             continue
         curve = metrics["coverage_curve"][f"{metrics['primary_threshold']:g}"]
-        curves.setdefault((fields["object"], fields["planner"]), []).append(
-            np.array([_num(v) for v in curve]))
+        curves.setdefault((fields["object"], fields["planner"]), []).append(_curve(curve))
     return curves
 
 
