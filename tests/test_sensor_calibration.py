@@ -158,6 +158,29 @@ def test_zone_directions_are_recovered_within_0_3_deg():
     assert np.all(fit.hits > 0)
 
 
+def test_a_stray_sighting_apart_from_a_zones_footprint_is_left_out_and_counted():
+    """One reading at the target's depth from elsewhere (7 deg beyond a footprint's edge)
+    moved that zone's centre by about 3.5 deg, silently."""
+    truth = _perturbed_table(seed=5)
+    params = _device(ZoneGeometry(centres_deg=truth), subsamples=10, sigma0_mm=5.0, k=0.015)
+    directions = target_raster(1.25, 27.5)
+    distance, status = _record(_target_scenes(params, directions, 200.0, 1.7), params,
+                               DATASHEET, seed=3, rho=0.88)
+    hits = target_hits(distance, status, np.full(len(directions), 200.0))
+    zone = (3, 4)
+    seen = directions[hits[:, zone[0], zone[1]]]
+    far = int(np.argmin(np.hypot(directions[:, 0] - (seen[:, 0].max() + 7.0),
+                                 directions[:, 1] - seen[:, 1].mean())))
+    assert not hits[far, zone[0], zone[1]]
+    hits[far, zone[0], zone[1]] = True
+    fit = fit_zone_directions(hits, directions)
+    error = np.hypot(*(fit.centres_deg - truth).reshape(-1, 2).T)
+    assert error.max() <= 0.3
+    expected = np.zeros((8, 8), int)
+    expected[zone] = 1
+    np.testing.assert_array_equal(fit.stray, expected)
+
+
 def test_target_hits_need_a_ranging_status_at_the_target_depth():
     distance = np.array([[[200, 230, 300, 200, 200]]])
     status = np.array([[[STATUS_VALID, STATUS_VALID, STATUS_VALID, STATUS_BLURRED,

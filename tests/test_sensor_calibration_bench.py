@@ -102,6 +102,31 @@ def test_characterize_writes_the_sensor_section_and_the_zone_table(recordings, t
                        st_zone_centres_deg(8)).max() <= 0.3
 
 
+def test_characterize_leaves_out_and_names_a_stray_target_sighting(recordings, tmp_path,
+                                                                   capsys):
+    """A reading at the target's depth far from a zone's footprint (something else at that
+    range) is left out, with a warning naming the zone, and the directions are unchanged."""
+    arrays = load_calibration_recording(recordings["target"], "target")
+    zone = (3, 4)  # the default geometry's raw order is row-major
+    d = arrays["distance_mm"][:, zone[0], zone[1]]
+    seen = np.abs(d - arrays["target_mm"]) <= 25
+    centre = arrays["target_deg"][seen].mean(axis=0)
+    apart = np.hypot(*(arrays["target_deg"] - centre).T) > 12
+    frame = int(np.flatnonzero(apart & ~seen)[0])
+    arrays["distance_mm"][frame, zone[0], zone[1]] = arrays["target_mm"][frame]
+    arrays["status"][frame, zone[0], zone[1]] = 5
+    write_npz_atomically(tmp_path / "stray.npz", arrays)
+    out = tmp_path / "cell.yaml"
+    assert main(["sensor", "characterize", "--target", str(tmp_path / "stray.npz"),
+                 "--out", str(out)]) == 0
+    assert "1 target sightings apart from their zone's footprint left out, in zones (row, " \
+        "column) (3, 4)" in capsys.readouterr().err
+    np.testing.assert_allclose(
+        sensor_params(load_scenario(filename=out)).geometry.centres_deg,
+        characterize_directions([str(recordings["target"])], ZoneGeometry()).centres_deg,
+        atol=1e-3)
+
+
 def test_characterize_names_the_file_and_the_arrays_it_misses(recordings, tmp_path, capsys):
     out = tmp_path / "cell.yaml"
     assert main(["sensor", "characterize", "--target", str(recordings["flat"]),

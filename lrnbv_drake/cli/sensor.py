@@ -161,6 +161,13 @@ def _characterize(args: argparse.Namespace) -> int:
         directions = characterize_directions(args.target, params.geometry)
         print(f"zone directions from {int(directions.hits.sum())} target sightings "
               f"({directions.hits.min()} to {directions.hits.max()} per zone)")
+        if directions.stray.any():
+            zones = [(int(r), int(c)) for r, c in zip(*directions.stray.nonzero(), strict=True)]
+            print(f"warning: {int(directions.stray.sum())} target sightings apart from their "
+                  f"zone's footprint left out, in zones (row, column) "
+                  f"{', '.join(map(str, zones[:8]))}{' ...' if len(zones) > 8 else ''}: a "
+                  f"reading at the target's depth from something else in the field of view",
+                  file=sys.stderr)
         params = dc.replace(params, geometry=dc.replace(params.geometry,
                                                         centres_deg=directions.centres_deg))
     if args.edge:

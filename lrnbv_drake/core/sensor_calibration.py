@@ -18,6 +18,8 @@ import dataclasses as dc
 import math
 
 import numpy as np
+import scipy.sparse.csgraph
+import scipy.spatial
 
 from lrnbv_drake.core.sensor import (
     STATUS_NO_TARGET,
@@ -201,10 +203,30 @@ class ZoneDirectionFit:
         centres_deg: (res * res * 2,) (x_deg, y_deg) per zone, row-major
             (`ZoneGeometry.centres_deg`).
         hits: (res, res) frames in which each zone reported the target.
+        stray: (res, res) of those, the ones left out: apart from the zone's footprint
+            (`_footprint_hits`).
     """
 
     centres_deg: np.ndarray
     hits: np.ndarray
+    stray: np.ndarray
+
+
+def _footprint_hits(target: np.ndarray, hit: np.ndarray, link: float) -> np.ndarray:
+    """`hit` without the sightings apart from the zone's footprint: the largest group of its
+    hit directions, each within `link` of another. A zone sees the target over one connected
+    patch of the raster; one reading at the target's depth from elsewhere (another object at
+    that range, a multipath return) would otherwise move an edge of the footprint, and the
+    centre with it, by several degrees without a word."""
+    index = np.flatnonzero(hit)
+    pairs = np.array(sorted(scipy.spatial.cKDTree(target[index]).query_pairs(link)),
+                     dtype=int).reshape(-1, 2)
+    graph = scipy.sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                                    shape=(len(index), len(index)))
+    _, labels = scipy.sparse.csgraph.connected_components(graph, directed=False)
+    keep = np.zeros_like(hit)
+    keep[index[labels == np.argmax(np.bincount(labels))]] = True
+    return keep
 
 
 def _footprint_middle(along: np.ndarray, across: np.ndarray, hit: np.ndarray, axis: str,
@@ -230,7 +252,8 @@ def fit_zone_directions(hits: np.ndarray, target_deg: np.ndarray) -> ZoneDirecti
 
     A zone reports the target wherever the target overlaps its footprint, a square around its
     centre; the middle of that region along x and along y is the centre whatever the
-    footprint's and the target's size (`_footprint_middle`).
+    footprint's and the target's size (`_footprint_middle`). Sightings apart from that
+    region (`_footprint_hits`, linked within 1.5 raster steps) are left out and counted.
 
     Args:
         hits: (n, res, res) row-major, from `target_hits`.
@@ -245,15 +268,20 @@ def fit_zone_directions(hits: np.ndarray, target_deg: np.ndarray) -> ZoneDirecti
         raise ValueError(f"target_deg has shape {target.shape}; expected {(hits.shape[0], 2)}")
     res = hits.shape[1]
     centres = np.empty((res, res, 2))
+    stray = np.zeros((res, res), int)
+    # The raster's step: the median distance from a direction to its nearest other one.
+    step = float(np.median(scipy.spatial.cKDTree(target).query(target, k=2)[0][:, 1])) \
+        if len(target) > 1 else 0.0
     for r in range(res):
         for c in range(res):
-            hit = hits[:, r, c]
-            if not hit.any():
+            if not hits[:, r, c].any():
                 raise ValueError(f"zone {(r, c)} (row-major) never reported the target: step "
                                  f"it over the whole field of view")
+            hit = _footprint_hits(target, hits[:, r, c], 1.5 * step)
+            stray[r, c] = int(hits[:, r, c].sum() - hit.sum())
             centres[r, c, 0] = _footprint_middle(target[:, 0], target[:, 1], hit, "x", (r, c))
             centres[r, c, 1] = _footprint_middle(target[:, 1], target[:, 0], hit, "y", (r, c))
-    return ZoneDirectionFit(centres.reshape(-1), hits.sum(axis=0))
+    return ZoneDirectionFit(centres.reshape(-1), hits.sum(axis=0), stray)
 
 
 # --- The mixed-zone rule from a board edge swept across the field of view --------------------
