@@ -267,3 +267,17 @@ def test_edge_steps_take_each_zone_s_majority_and_its_merged_mean():
     assert np.isnan(steps.merged_mm[0, 0, 0])
     assert FAR not in steps.observed
 
+
+def test_an_edge_step_whose_frames_tie_between_two_outcomes_observes_neither():
+    """Two frames near and two far: the zone flickers there. Taken as the first outcome in
+    the list, every tie counted as near (or as none, before near)."""
+    distance = np.array([[[405, 0]], [[598, 0]], [[402, 395]], [[603, 0]], [[396, 0]]])
+    status = np.array([[[STATUS_VALID, STATUS_NO_TARGET]], [[STATUS_VALID, STATUS_NO_TARGET]],
+                       [[STATUS_VALID, STATUS_VALID]], [[STATUS_VALID, STATUS_NO_TARGET]],
+                       [[STATUS_VALID, STATUS_NO_TARGET]]])
+    steps = edge_steps(distance[:4], status[:4], np.ones(4), np.full(4, 400.0),
+                       np.full(4, 600.0))
+    np.testing.assert_array_equal(steps.observed, [[[-1, NONE]]])
+    steps = edge_steps(distance, status, np.ones(5), np.full(5, 400.0), np.full(5, 600.0))
+    np.testing.assert_array_equal(steps.observed, [[[NEAR, NONE]]])
+

@@ -329,7 +329,8 @@ class EdgeSteps:
     Attributes:
         edge_deg, near_mm, far_mm: (m,) the geometry of each step.
         observed: (m, res, res) the outcome most of the step's frames report (-1 where no
-            frame's status says).
+            frame's status says, or two outcomes tie: the zone flickers between them there,
+            and neither is what it reports).
         merged_mm: (m, res, res) mean depth of the frames reporting a merged target (NaN where
             none does).
     """
@@ -355,7 +356,9 @@ def edge_steps(distance_mm: np.ndarray, status: np.ndarray, edge_deg: np.ndarray
     np.add.at(total, index.ravel(), np.where(merged, distance_mm, 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
         merged_mm = total / votes[..., MERGED]
-    observed = np.where(votes.sum(axis=-1) > 0, votes.argmax(axis=-1), -1)
+    top = votes.max(axis=-1)
+    single = (votes == top[..., None]).sum(axis=-1) == 1
+    observed = np.where((top > 0) & single, votes.argmax(axis=-1), -1)
     return EdgeSteps(steps[:, 0], steps[:, 1], steps[:, 2], observed, merged_mm)
 
 
