@@ -235,6 +235,8 @@ def test_scattered_noise_only():
     assert result.n_clusters == 0
     assert np.count_nonzero(result.labels == LABEL_NOISE) == len(noise)
     assert result.oriented_box is None and result.dimensions is None
+    # Where something may stand: every point above the table, as given.
+    np.testing.assert_array_equal(result.loose_points, noise)
 
 
 def test_noise_leaves_the_object_unchanged():

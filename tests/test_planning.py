@@ -5,6 +5,7 @@ import pytest
 
 from lrnbv_drake.core.acquisition import Acquisition
 from lrnbv_drake.core.boxes import AlignedBox
+from lrnbv_drake.core.perception import ExtractionResult, ExtractionStatus
 from lrnbv_drake.core.planning.config import GainParams, PlannerParams, UtilityWeights
 from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy, _Cached, cache_capacity
 from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation
@@ -379,3 +380,28 @@ def test_the_travel_discount_scales_positive_utilities_by_exp_minus_lambda_t(mon
     assert u_plain[2] < 0 and u[2] == u_plain[2]
     with pytest.raises(ValueError, match="travel_time"):
         _policy(travel_discount=0.1)
+
+
+def _loose(points):
+    return ExtractionResult(ExtractionStatus.ONLY_NOISE, "no cluster", np.zeros(len(points)),
+                            loose_points=np.asarray(points, float))
+
+
+def test_the_search_looks_where_cells_too_few_for_a_cluster_stand():
+    """From HOME the vertical box shows a few cells of its top: the search goes there, down
+    to the table, and not to the table's lowest 8 cm."""
+    dut = _policy()
+    top = [[0.47, -0.04, 0.245], [0.52, 0.03, 0.255], [0.50, 0.0, 0.25]]
+    roi, points, center = dut._roi(_loose(top))
+    np.testing.assert_allclose(roi.lower, [0.42, -0.09, 0.0])
+    np.testing.assert_allclose(roi.upper, [0.57, 0.08, 0.305])
+    np.testing.assert_allclose(center, roi.center)
+    assert len(points) == 0
+    region = (dut.params.search_lower, dut.params.search_upper)
+    # Too few cells, cells outside the search region's footprint, or the lead turned off.
+    for extraction, kwargs in ((_loose(top[:2]), {}),
+                               (_loose(np.add(top, [0.0, 0.4, 0.0])), {}),
+                               (_loose(top), {"lead_points": 0}),
+                               (None, {})):
+        roi, _, _ = _policy(**kwargs)._roi(extraction)
+        np.testing.assert_allclose([roi.lower, roi.upper], region)

@@ -119,13 +119,14 @@ def test_an_override_replaces_only_the_fields_it_names():
 def test_the_paper_preset_sets_the_papers_estimator_stop_utility_and_search_and_nothing_else():
     paper, product = preset("paper"), preset(None)
     assert (paper.extraction.estimator, paper.planner.stop.rule,
-            paper.planner.travel_discount, paper.planner.search_upper[2]) == (
-                "cells", "paper", 0.0, 0.3)
+            paper.planner.travel_discount, paper.planner.search_upper[2],
+            paper.planner.lead_points) == ("cells", "paper", 0.0, 0.3, 0)
     assert (product.extraction.estimator, product.planner.stop.rule,
-            product.planner.travel_discount, product.planner.search_upper[2]) == (
-                "shape", "box", 0.0, 0.08)
+            product.planner.travel_discount, product.planner.search_upper[2],
+            product.planner.lead_points) == ("shape", "box", 0.0, 0.08, 3)
     paper.extraction.estimator, paper.planner.stop.rule = "shape", "box"
     paper.planner.search_upper = product.planner.search_upper
+    paper.planner.lead_points = product.planner.lead_points
     assert yaml_dump_typed(paper) == yaml_dump_typed(product)
     with pytest.raises(ScenarioError, match="unknown preset 'papers'"):
         preset("papers")

@@ -147,6 +147,9 @@ class ExtractionResult:
         dimensions: (3,) length >= width, height of `oriented_box`.
         roi: `aligned_box` grown by `roi_margin` and clipped to the workspace.
         center: (3,) centre of `oriented_box` (the paper's x_object).
+        loose_points: (K, 3) the points above the table when they form no cluster of
+            `min_cluster_points` (status ONLY_NOISE): where an object may stand, seen too
+            little to be one yet.
     """
 
     status: ExtractionStatus
@@ -161,6 +164,7 @@ class ExtractionResult:
     dimensions: np.ndarray | None = None
     roi: AlignedBox | None = None
     center: np.ndarray | None = None
+    loose_points: np.ndarray | None = None
 
     @property
     def found(self) -> bool:
@@ -233,6 +237,7 @@ def extract_object(occupied_points: np.ndarray, params: ExtractionParams) -> Ext
             f"{params.min_cluster_points} points",
             labels,
             table_height=table_height,
+            loose_points=pts[keep],
         )
 
     chosen = _select_cluster(pts, labels, n_clusters, params)

@@ -354,10 +354,10 @@ def check_against_schema(data: typing.Any, schema: type, path: str = "") -> None
 #: Named starting points for a scenario (`--preset NAME`): "paper" is the paper's
 #: configuration where the product's defaults differ from it (docs/results.md measures both):
 #: the box around the occupied map cells, Algorithm 1's line 24 as the only stop, and the
-#: whole workspace's height searched before the object is found.
+#: whole workspace's height searched before the object is found (not where a few cells stand).
 PRESETS: dict[str, str] = {
     "paper": ("{extraction: {estimator: cells}, planner: {stop: {rule: paper}, "
-              "travel_discount: 0.0, search_upper: [0.75, 0.3, 0.3]}}"),
+              "travel_discount: 0.0, search_upper: [0.75, 0.3, 0.3], lead_points: 0}}"),
 }
 
 

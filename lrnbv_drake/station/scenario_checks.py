@@ -167,6 +167,8 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("planner.stop.interval_cost", _above(0)),
     ("planner.search_lower", _vector(3)),
     ("planner.search_upper", _vector(3)),
+    ("planner.lead_points", _at_least(0)),
+    ("planner.lead_margin", _at_least(0)),
     ("visualization.publish_period", _above(0)),
 ))
 

@@ -96,6 +96,11 @@ class PlannerParams:
     # not 3 (docs/results.md).
     search_lower: list[float] = dc.field(default_factory=lambda: [0.25, -0.3, 0.0])
     search_upper: list[float] = dc.field(default_factory=lambda: [0.75, 0.3, 0.08])
+    # Where the search looks instead once at least this many occupied cells stand above the
+    # table inside its footprint, too few for a cluster (`ExtractionResult.loose_points`):
+    # their box down to the table, grown by `lead_margin` (0: the search region always).
+    lead_points: int = 3
+    lead_margin: float = 0.05
     stop: StopParams = dc.field(default_factory=StopParams)
     # lambda, 1/s: a view's positive utility is multiplied by exp(-lambda t), t the time the
     # arm takes to reach it from where it is (the receding-horizon NBV planners' discount).
