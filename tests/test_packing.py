@@ -1,8 +1,11 @@
-"""The packing decision (core/packing.py) on hand-worked cases."""
+"""The packing decision (core/packing.py, and its margin in experiments/report.py) on
+hand-worked cases."""
 
 import numpy as np
 import pytest
 
+from lrnbv_drake.core.box_fit import BoxFit
+from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.packing import (
     CatalogueError,
     Container,
@@ -10,6 +13,7 @@ from lrnbv_drake.core.packing import (
     load_catalogue,
     packing_metrics,
 )
+from lrnbv_drake.experiments.report import _container_entry, packing_decision
 from lrnbv_drake.station.parts import container_catalogue
 from lrnbv_drake.station.scenario import Scenario
 
@@ -116,3 +120,28 @@ def test_the_shipped_catalogue_holds_every_paper_object_in_a_sensible_box():
     for dims, name in expected.items():
         decision = choose_container(np.array(dims), np.full(3, 0.01), 0.005, catalogue)
         assert decision.container.name == name, (dims, decision.reason)
+
+
+def test_the_occupied_cells_less_a_cell_are_the_floor_of_the_container():
+    """A flange whose plate the fit lost: 0.134 x 0.124 x 0.037 m, its interval up to 0.151 x
+    0.141 x 0.040, while its occupied cells span 0.183 x 0.183 x 0.055. The shipped catalogue
+    then holds the interval but not the 0.200 x 0.200 x 0.050 flange; the cells less a cell
+    (0.173 x 0.173 x 0.045) push the decision up to a box that does."""
+    scenario = Scenario()
+    catalogue = container_catalogue(scenario)
+    box = OrientedBox(np.array([0.5, 0.0, 0.0185]), np.array([0.134, 0.124, 0.037]))
+    fit = BoxFit(box, np.array([0.109, 0.11, 0.035]), np.array([0.151, 0.141, 0.04]), 1.0,
+                 100, 1)
+    cells = OrientedBox(np.array([0.5, 0.0, 0.0275]), np.array([0.183, 0.183, 0.055]))
+    truth = np.array([0.2, 0.2, 0.05])
+    alone = packing_decision(scenario, box, fit)
+    assert not packing_metrics(alone, truth, catalogue)["fits"]
+    floored = packing_decision(scenario, box, fit, cells)
+    np.testing.assert_allclose(floored.margin, [0.039, 0.049, 0.008], atol=1e-12)
+    assert packing_metrics(floored, truth, catalogue)["fits"]
+    assert "raised to the occupied cells" in _container_entry(
+        scenario, floored, fit, cells)["margin_from"]
+    # Cells within the interval plus a cell change nothing.
+    inside = OrientedBox(cells.center, np.array([0.16, 0.15, 0.05]))
+    assert packing_decision(scenario, box, fit, inside).container == alone.container
+    assert "raised" not in _container_entry(scenario, alone, fit, inside)["margin_from"]
