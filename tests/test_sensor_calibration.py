@@ -140,15 +140,21 @@ def test_a_device_switching_above_half_a_zone_is_fitted_at_half():
         pytest.approx(0.375)  # below half: between the two observed shares
 
 
-def test_zone_directions_are_recovered_within_0_3_deg():
+@pytest.fixture(scope="module")
+def irregular_zones_sighted():
     """A table of known, irregular zone centres, the datasheet device's detection (any
-    overlap bright enough), a 1.7 deg target."""
+    overlap bright enough), a 1.7 deg target stepped over the raster: (truth, directions,
+    hits)."""
     truth = _perturbed_table(seed=5)
     params = _device(ZoneGeometry(centres_deg=truth), subsamples=10, sigma0_mm=5.0, k=0.015)
     directions = target_raster(1.25, 27.5)
     distance, status = _record(_target_scenes(params, directions, 200.0, 1.7), params,
                                DATASHEET, seed=3, rho=0.88)
-    hits = target_hits(distance, status, np.full(len(directions), 200.0))
+    return truth, directions, target_hits(distance, status, np.full(len(directions), 200.0))
+
+
+def test_zone_directions_are_recovered_within_0_3_deg(irregular_zones_sighted):
+    truth, directions, hits = irregular_zones_sighted
     fit = fit_zone_directions(hits, directions)
     error = np.hypot(*(fit.centres_deg - truth).reshape(-1, 2).T)
     assert error.max() <= 0.3
@@ -158,15 +164,12 @@ def test_zone_directions_are_recovered_within_0_3_deg():
     assert np.all(fit.hits > 0)
 
 
-def test_a_stray_sighting_apart_from_a_zones_footprint_is_left_out_and_counted():
+def test_a_stray_sighting_apart_from_a_zones_footprint_is_left_out_and_counted(
+        irregular_zones_sighted):
     """One reading at the target's depth from elsewhere (7 deg beyond a footprint's edge)
     moved that zone's centre by about 3.5 deg, silently."""
-    truth = _perturbed_table(seed=5)
-    params = _device(ZoneGeometry(centres_deg=truth), subsamples=10, sigma0_mm=5.0, k=0.015)
-    directions = target_raster(1.25, 27.5)
-    distance, status = _record(_target_scenes(params, directions, 200.0, 1.7), params,
-                               DATASHEET, seed=3, rho=0.88)
-    hits = target_hits(distance, status, np.full(len(directions), 200.0))
+    truth, directions, hits = irregular_zones_sighted
+    hits = hits.copy()
     zone = (3, 4)
     seen = directions[hits[:, zone[0], zone[1]]]
     far = int(np.argmin(np.hypot(directions[:, 0] - (seen[:, 0].max() + 7.0),

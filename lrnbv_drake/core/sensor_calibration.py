@@ -274,11 +274,12 @@ def fit_zone_directions(hits: np.ndarray, target_deg: np.ndarray) -> ZoneDirecti
         if len(target) > 1 else 0.0
     for r in range(res):
         for c in range(res):
-            if not hits[:, r, c].any():
+            seen = hits[:, r, c]
+            if not seen.any():
                 raise ValueError(f"zone {(r, c)} (row-major) never reported the target: step "
                                  f"it over the whole field of view")
-            hit = _footprint_hits(target, hits[:, r, c], 1.5 * step)
-            stray[r, c] = int(hits[:, r, c].sum() - hit.sum())
+            hit = _footprint_hits(target, seen, 1.5 * step)
+            stray[r, c] = int(seen.sum() - hit.sum())
             centres[r, c, 0] = _footprint_middle(target[:, 0], target[:, 1], hit, "x", (r, c))
             centres[r, c, 1] = _footprint_middle(target[:, 1], target[:, 0], hit, "y", (r, c))
     return ZoneDirectionFit(centres.reshape(-1), hits.sum(axis=0), stray)

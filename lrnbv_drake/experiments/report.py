@@ -141,15 +141,12 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
     }
 
 
-def _cells_floor(scenario: Scenario, cells: OrientedBox | None) -> np.ndarray | None:
-    """How far the object's occupied map cells say it reaches at least: their box less a
-    cell (`mapping.resolution`) for the quantisation."""
-    return None if cells is None else cells.dims - scenario.mapping.resolution
-
-
 def _upper(scenario: Scenario, fit: BoxFit, cells: OrientedBox | None) -> np.ndarray:
-    floor = _cells_floor(scenario, cells)
-    return fit.dims_upper if floor is None else np.maximum(fit.dims_upper, floor)
+    """The fit's upper bounds, raised to how far the object's occupied map cells say it
+    reaches at least: their box less a cell (`mapping.resolution`) for the quantisation."""
+    if cells is None:
+        return fit.dims_upper
+    return np.maximum(fit.dims_upper, cells.dims - scenario.mapping.resolution)
 
 
 def packing_decision(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None,
