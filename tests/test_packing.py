@@ -13,7 +13,7 @@ from lrnbv_drake.core.packing import (
     load_catalogue,
     packing_metrics,
 )
-from lrnbv_drake.experiments.report import _container_entry, packing_decision
+from lrnbv_drake.experiments.report import container_entry, packing_decision
 from lrnbv_drake.station.parts import container_catalogue
 from lrnbv_drake.station.scenario import Scenario
 
@@ -139,9 +139,9 @@ def test_the_occupied_cells_less_a_cell_are_the_floor_of_the_container():
     floored = packing_decision(scenario, box, fit, cells)
     np.testing.assert_allclose(floored.margin, [0.039, 0.049, 0.008], atol=1e-12)
     assert packing_metrics(floored, truth, catalogue)["fits"]
-    assert "raised to the occupied cells" in _container_entry(
+    assert "raised to the occupied cells" in container_entry(
         scenario, floored, fit, cells)["margin_from"]
     # Cells within the interval plus a cell change nothing.
     inside = OrientedBox(cells.center, np.array([0.16, 0.15, 0.05]))
     assert packing_decision(scenario, box, fit, inside).container == alone.container
-    assert "raised" not in _container_entry(scenario, alone, fit, inside)["margin_from"]
+    assert "raised" not in container_entry(scenario, alone, fit, inside)["margin_from"]

@@ -5,6 +5,7 @@ object, the real cell its hardware state."""
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -16,6 +17,7 @@ from lrnbv_drake.core.box_fit import BoxFit
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.objects import PlacedObject, sample_surface
 from lrnbv_drake.core.packing import PackingDecision, choose_container, packing_metrics
+from lrnbv_drake.core.sensor import ToFFrame
 from lrnbv_drake.station.parts import box_estimator, container_catalogue
 from lrnbv_drake.station.scenario import Scenario
 
@@ -58,15 +60,23 @@ def _found_box(extraction) -> OrientedBox | None:
 
 def estimate_box(scenario: Scenario, episode_log: EpisodeLog, interval: bool = True
                  ) -> tuple[OrientedBox | None, BoxFit | None]:
-    """The episode's box as `extraction.estimator` says: the sensor-model fit to every reading
-    (with its interval unless not `interval`), started from the final cell box; or that cell
-    box itself."""
-    cells = _found_box(_final_extraction(episode_log))
+    """The episode's box as `extraction.estimator` says (`fit_readings`), started from the
+    final cell box."""
+    return fit_readings(scenario, [(a.frame, a.X_WS) for a in episode_log.acquisitions],
+                        _found_box(_final_extraction(episode_log)), interval)
+
+
+def fit_readings(scenario: Scenario, readings: Sequence[tuple[ToFFrame, np.ndarray]],
+                 cells: OrientedBox | None, interval: bool = True
+                 ) -> tuple[OrientedBox | None, BoxFit | None]:
+    """The box as `extraction.estimator` says: the sensor-model fit to every (frame, X_WS) of
+    `readings` (with its interval unless not `interval`), started from the cell box `cells`;
+    or `cells` itself. No fit without `cells` (no object was found)."""
     estimator = box_estimator(scenario)
     if cells is None or estimator is None:
         return cells, None
-    for a in episode_log.acquisitions:
-        estimator.add(a.frame, a.X_WS)
+    for frame, X_WS in readings:
+        estimator.add(frame, X_WS)
     fit = estimator.estimate(cells, interval=interval)
     return (fit.box if fit is not None else cells), fit
 
@@ -106,8 +116,8 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
         "seed": scenario.seed,
         "termination": termination,
         "n_poses": len(episode_log.acquisitions),
-        "estimated_box": _box_entry(scenario, box, fit),
-        "container": _container_entry(scenario, decision, fit, cells),
+        "estimated_box": box_entry(scenario, box, fit),
+        "container": container_entry(scenario, decision, fit, cells),
         "cycle_time": {"motion_s": cycle.motion, "settle_s": cycle.settle,
                        "computation_s": cycle.computation, "total_s": cycle.total},
         "extraction": final.reason if final is not None else "no extraction",
@@ -167,8 +177,9 @@ def packing_decision(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | 
                             container_catalogue(scenario))
 
 
-def _container_entry(scenario: Scenario, decision: PackingDecision | None, fit: BoxFit | None,
-                     cells: OrientedBox | None) -> dict[str, Any] | None:
+def container_entry(scenario: Scenario, decision: PackingDecision | None, fit: BoxFit | None,
+                    cells: OrientedBox | None) -> dict[str, Any] | None:
+    """report.json's `container`: the decision and where its margin came from."""
     if decision is None:
         return None
     margin_from = "packing.fixed_margin"
@@ -198,8 +209,9 @@ def _cell_box_entry(box: OrientedBox | None) -> dict[str, Any] | None:
     return {"center": box.center.tolist(), "dims": box.dims.tolist(), "yaw": float(box.yaw)}
 
 
-def _box_entry(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None
-               ) -> dict[str, Any] | None:
+def box_entry(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None
+              ) -> dict[str, Any] | None:
+    """report.json's `estimated_box`: the box, and the fit's interval where there is one."""
     if box is None:
         return None
     entry = {"estimator": scenario.extraction.estimator, "center": box.center.tolist(),
@@ -234,9 +246,7 @@ def accuracy_metrics(scenario: Scenario, placed: PlacedObject, episode_log: Epis
     out: dict[str, Any] = {
         "true_box": {"center": true.center.tolist(), "dims": true.dims.tolist(),
                      "yaw": float(true.yaw)},
-        "dim_errors_mm": (None if report_box is None else
-                          np.round((np.array(report_box["dims"]) - true.dims) * 1000, 2)
-                          .tolist()),
+        "dim_errors_mm": None,
         "poses_to_5mm": metrics.poses_to_accuracy(errors, 0.005),
         "poses_to_10mm": metrics.poses_to_accuracy(errors, 0.010),
         "dim_errors_after_each_pose_mm": [
@@ -251,7 +261,17 @@ def accuracy_metrics(scenario: Scenario, placed: PlacedObject, episode_log: Epis
                                    np.array(container["margin"]), container["clearance"],
                                    container["orientation"], container["reason"])
         out["packing"] = packing_metrics(decision, true.dims, catalogue)
-    if report_box is not None and "dims_lower" in report_box:
-        lower, upper = np.array(report_box["dims_lower"]), np.array(report_box["dims_upper"])
+    if report_box is not None:
+        out.update(against_truth(report_box, true))
+    return out
+
+
+def against_truth(box: dict[str, Any], true: OrientedBox) -> dict[str, Any]:
+    """`dim_errors_mm` of the `estimated_box` entry `box` against the true box, and
+    `truth_in_interval` where the entry has an interval."""
+    out: dict[str, Any] = {
+        "dim_errors_mm": np.round((np.array(box["dims"]) - true.dims) * 1000, 2).tolist()}
+    if "dims_lower" in box:
+        lower, upper = np.array(box["dims_lower"]), np.array(box["dims_upper"])
         out["truth_in_interval"] = ((lower <= true.dims) & (true.dims <= upper)).tolist()
     return out

@@ -1,0 +1,88 @@
+"""`lrnbv refit`: a recorded episode's box estimated again from its frames.npz and report.json,
+under its own scenario or another one."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from lrnbv_drake.cli.main import main
+
+
+@pytest.fixture(scope="module")
+def episode(tmp_path_factory):
+    out = tmp_path_factory.mktemp("heu")
+    assert main(["run", "--planner", "heu", "--object", "vertical_box", "--seed", "1",
+                 "--out", str(out)]) == 0
+    return out
+
+
+def _refit(tmp_path, *args):
+    out = tmp_path / "refit.json"
+    code = main(["refit", *map(str, args), "--out", str(out)])
+    return code, (json.loads(out.read_text()) if out.exists() else None)
+
+
+def test_its_own_scenario_gives_back_the_reported_box_and_changes_no_file(episode, tmp_path):
+    before = {name: (episode / name).read_bytes() for name in ("report.json", "frames.npz")}
+    code, (result,) = _refit(tmp_path, episode)
+    report = json.loads(before["report.json"])
+    assert code == 0
+    assert result["estimated_box"] == report["estimated_box"]
+    assert result["container"] == report["container"]
+    assert result["dim_errors_mm"] == report["metrics"]["dim_errors_mm"]
+    assert result["truth_in_interval"] == report["metrics"]["truth_in_interval"]
+    assert {name: (episode / name).read_bytes() for name in before} == before
+
+
+def test_the_cell_estimator_gives_the_recorded_cell_box(episode, tmp_path):
+    code, (result,) = _refit(tmp_path, episode, "--scenario-text",
+                             "{extraction: {estimator: cells}}")
+    report = json.loads((episode / "report.json").read_text())
+    assert code == 0
+    np.testing.assert_allclose(result["estimated_box"]["dims"], report["cell_box"]["dims"],
+                               atol=1e-9)
+    assert "dims_lower" not in result["estimated_box"]  # the cell box has no interval
+
+
+def test_a_model_that_calls_the_sensor_noisier_widens_the_interval(episode, tmp_path):
+    """The interval is where the fit's cost rises by a fixed amount in units of the model's
+    sigma: a model that trusts each reading less bounds every dimension more loosely."""
+    _, (own,) = _refit(tmp_path, episode)
+    code, (noisy,) = _refit(tmp_path, episode, "--scenario-text",
+                            "{sensor: {sigma0_mm: 40.0}}")
+    assert code == 0
+    width = [np.subtract(r["estimated_box"]["dims_upper"], r["estimated_box"]["dims_lower"])
+             for r in (own, noisy)]
+    assert np.all(width[1] > width[0])
+
+
+def test_frames_that_do_not_match_the_report_are_refused_and_nothing_is_written(
+        episode, tmp_path, capsys):
+    folder = tmp_path / "cut"
+    shutil.copytree(episode, folder)
+    with np.load(folder / "frames.npz") as data:
+        arrays = {key: data[key][:3] for key in data.files}
+    np.savez(folder / "frames.npz", **arrays)
+    code, written = _refit(tmp_path, episode, folder)  # the good one first: nothing either
+    assert code == 2 and written is None
+    assert f"{folder / 'frames.npz'}: 3 frames, but" in capsys.readouterr().err
+
+
+def test_a_missing_file_is_named(tmp_path, capsys):
+    (tmp_path / "report.json").write_text("{}")
+    code, written = _refit(tmp_path, tmp_path)
+    assert code == 2 and written is None
+    assert f"{tmp_path / 'frames.npz'}: no such file" in capsys.readouterr().err
+
+
+def test_an_episode_that_found_no_object_gives_no_box(episode, tmp_path, capsys):
+    folder = tmp_path / "none"
+    shutil.copytree(episode, folder)
+    report = json.loads((folder / "report.json").read_text())
+    report["cell_box"] = None
+    (folder / "report.json").write_text(json.dumps(report))
+    code, (result,) = _refit(tmp_path, folder)
+    assert code == 1 and result["estimated_box"] is None and result["container"] is None
+    assert "no object found" in capsys.readouterr().out
