@@ -2,5 +2,19 @@
 
 import os
 
+import pytest
+
 os.environ["DRAKE_ALLOW_NETWORK"] = "meshcat"
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+@pytest.fixture(scope="session")
+def heu_run(tmp_path_factory):
+    """A whole simulated HEU episode written by `lrnbv run` (horizontal box, seed 3): read by
+    every test that takes it, changed by none."""
+    from lrnbv_drake.cli.main import main
+
+    out = tmp_path_factory.mktemp("heu")
+    assert main(["run", "--planner", "heu", "--object", "horizontal_box", "--seed", "3",
+                 "--out", str(out)]) == 0
+    return out

@@ -13,14 +13,6 @@ from lrnbv_drake.station.cell_models import place_object
 from lrnbv_drake.station.scenario import Scenario
 
 
-@pytest.fixture(scope="module")
-def heu_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("heu")
-    assert main(["run", "--planner", "heu", "--object", "horizontal_box", "--seed", "3",
-                 "--out", str(out)]) == 0
-    return out
-
-
 def _world_points(frames):
     geometry = ZoneGeometry()
     points = []

@@ -5,17 +5,8 @@ import json
 import shutil
 
 import numpy as np
-import pytest
 
 from lrnbv_drake.cli.main import main
-
-
-@pytest.fixture(scope="module")
-def episode(tmp_path_factory):
-    out = tmp_path_factory.mktemp("heu")
-    assert main(["run", "--planner", "heu", "--object", "vertical_box", "--seed", "1",
-                 "--out", str(out)]) == 0
-    return out
 
 
 def _refit(tmp_path, *args):
@@ -24,33 +15,33 @@ def _refit(tmp_path, *args):
     return code, (json.loads(out.read_text()) if out.exists() else None)
 
 
-def test_its_own_scenario_gives_back_the_reported_box_and_changes_no_file(episode, tmp_path):
-    before = {name: (episode / name).read_bytes() for name in ("report.json", "frames.npz")}
-    code, (result,) = _refit(tmp_path, episode)
+def test_its_own_scenario_gives_back_the_reported_box_and_changes_no_file(heu_run, tmp_path):
+    before = {name: (heu_run / name).read_bytes() for name in ("report.json", "frames.npz")}
+    code, (result,) = _refit(tmp_path, heu_run)
     report = json.loads(before["report.json"])
     assert code == 0
     assert result["estimated_box"] == report["estimated_box"]
     assert result["container"] == report["container"]
     assert result["dim_errors_mm"] == report["metrics"]["dim_errors_mm"]
     assert result["truth_in_interval"] == report["metrics"]["truth_in_interval"]
-    assert {name: (episode / name).read_bytes() for name in before} == before
+    assert {name: (heu_run / name).read_bytes() for name in before} == before
 
 
-def test_the_cell_estimator_gives_the_recorded_cell_box(episode, tmp_path):
-    code, (result,) = _refit(tmp_path, episode, "--scenario-text",
+def test_the_cell_estimator_gives_the_recorded_cell_box(heu_run, tmp_path):
+    code, (result,) = _refit(tmp_path, heu_run, "--scenario-text",
                              "{extraction: {estimator: cells}}")
-    report = json.loads((episode / "report.json").read_text())
+    report = json.loads((heu_run / "report.json").read_text())
     assert code == 0
     np.testing.assert_allclose(result["estimated_box"]["dims"], report["cell_box"]["dims"],
                                atol=1e-9)
     assert "dims_lower" not in result["estimated_box"]  # the cell box has no interval
 
 
-def test_a_model_that_calls_the_sensor_noisier_widens_the_interval(episode, tmp_path):
+def test_a_model_that_calls_the_sensor_noisier_widens_the_interval(heu_run, tmp_path):
     """The interval is where the fit's cost rises by a fixed amount in units of the model's
     sigma: a model that trusts each reading less bounds every dimension more loosely."""
-    _, (own,) = _refit(tmp_path, episode)
-    code, (noisy,) = _refit(tmp_path, episode, "--scenario-text",
+    _, (own,) = _refit(tmp_path, heu_run)
+    code, (noisy,) = _refit(tmp_path, heu_run, "--scenario-text",
                             "{sensor: {sigma0_mm: 40.0}}")
     assert code == 0
     width = [np.subtract(r["estimated_box"]["dims_upper"], r["estimated_box"]["dims_lower"])
@@ -59,13 +50,13 @@ def test_a_model_that_calls_the_sensor_noisier_widens_the_interval(episode, tmp_
 
 
 def test_frames_that_do_not_match_the_report_are_refused_and_nothing_is_written(
-        episode, tmp_path, capsys):
+        heu_run, tmp_path, capsys):
     folder = tmp_path / "cut"
-    shutil.copytree(episode, folder)
+    shutil.copytree(heu_run, folder)
     with np.load(folder / "frames.npz") as data:
         arrays = {key: data[key][:3] for key in data.files}
     np.savez(folder / "frames.npz", **arrays)
-    code, written = _refit(tmp_path, episode, folder)  # the good one first: nothing either
+    code, written = _refit(tmp_path, heu_run, folder)  # the good one first: nothing either
     assert code == 2 and written is None
     assert f"{folder / 'frames.npz'}: 3 frames, but" in capsys.readouterr().err
 
@@ -77,9 +68,9 @@ def test_a_missing_file_is_named(tmp_path, capsys):
     assert f"{tmp_path / 'frames.npz'}: no such file" in capsys.readouterr().err
 
 
-def test_an_episode_that_found_no_object_gives_no_box(episode, tmp_path, capsys):
+def test_an_episode_that_found_no_object_gives_no_box(heu_run, tmp_path, capsys):
     folder = tmp_path / "none"
-    shutil.copytree(episode, folder)
+    shutil.copytree(heu_run, folder)
     report = json.loads((folder / "report.json").read_text())
     report["cell_box"] = None
     (folder / "report.json").write_text(json.dumps(report))
