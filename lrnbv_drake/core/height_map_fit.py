@@ -107,6 +107,10 @@ class HeightMapParams:
     # The lowest fill: thinner, a fill is a skirt of the table's noise (two sigmas of the
     # nominal model at working range); at 5 mm one grew a gripper 36 mm.
     fill_min: float = 0.01
+    # No fill where the cut leaves more than this cost per zone: the misfit is then the
+    # model's, not the shape's (the flange on the modelled device: at most 2.4; the datasheet
+    # device under the nominal model: 3-16, where fills grew boxes 4-9 cm).
+    fill_misfit: float = 3.0
 
 
 @dc.dataclass(frozen=True)
@@ -726,7 +730,8 @@ def _outlined(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarray,
     at one fitted height (or none). Two coordinate searches from the columns' bounding box: a
     cut alone, from a square (the columns as they are), and with the fill, from a rounded
     outline at the columns' median height; the fill is kept where it gains `fill_cost` (scaled
-    by the cost per zone when above one) over the cut.
+    by the cost per zone when above one) over the cut, and the cut leaves at most
+    `fill_misfit` a zone.
 
     Why: 1 cm columns cannot draw a round rim. On ten flange trials the true flange on 1 cm
     cells explained the readings worse than the fit (cost 487-1165 against 442-718), on 5 mm
@@ -798,7 +803,8 @@ def _outlined(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarray,
         fits.append((best, p))
     (cut_cost, cut), (fill_cost, fill) = fits if len(fits) == 2 else fits * 2
     price = params.fill_cost * max(1.0, fill_cost / near.zones)
-    heights = outlined(fill if fill_cost <= cut_cost - price else cut)
+    explained = cut_cost <= params.fill_misfit * near.zones
+    heights = outlined(fill if explained and fill_cost <= cut_cost - price else cut)
     return fx, fy, heights, (heights > params.min_height) & ~raised
 
 
