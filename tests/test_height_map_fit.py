@@ -296,7 +296,7 @@ def test_the_outline_leaves_columns_that_explain_the_readings_as_they_are():
 def test_the_flange_outline_fills_only_its_plate_and_boxes_it_within_10_mm():
     """The flange (a 20 mm plate Ø200 around a 50 mm hub), nine rendered views without noise:
     the 1 cm columns lose parts of the round rim; the outline's fill puts plate back only on
-    the plate (no cell more than a cell off its disk, none in its bore) and its box is within 10 mm."""
+    the plate (no cell more than a cell off its disk, none in its bore), its box within 10 mm."""
     frames, truth, model = render("object: {name: flange, yaw_deg: 10}\n" + NOISE_FREE)
     estimator = ShapeEstimator(model, 0.0)
     for frame, X_WS in frames:

@@ -733,9 +733,9 @@ def _outlined(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarray,
     by the cost per zone when above one) over the cut, and the cut leaves at most
     `fill_misfit` a zone.
 
-    Why: 1 cm columns cannot draw a round rim. On ten flange trials the true flange on 1 cm
-    cells explained the readings worse than the fit (cost 487-1165 against 442-718), on 5 mm
-    cells far better (233-686), and the column descent cannot get there on 5 mm cells: one
+    Why: 1 cm columns cannot draw a round rim. On nine LR-NBV flange episodes the true flange
+    on 1 cm cells explained the readings worse than the fit (cost 487-1165 against 442-718),
+    on 5 mm cells far better (233-686), and the column descent cannot get there on 5 mm cells: one
     column does not move a zone's median. An outline moves a whole rim at once, and its fill
     puts back a plate the descent lost in places (docs/box-estimation.md). Also returns the
     cells the fill raised."""
@@ -766,6 +766,8 @@ def _outlined(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarray,
     changing &= np.diff(ray_start) > 0
     near = readings.take(changing.reshape(readings.zones, readings.m).any(axis=1),
                          readings.hmax)
+    if near.zones == 0:  # no reading sees where an outline could change anything
+        return edges_x, edges_y, grid, np.zeros(grid.shape, bool)
 
     on_grid = near.cost_on(fx, fy)
 
@@ -774,9 +776,9 @@ def _outlined(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarray,
 
     # Fill heights: `fill_min` up to the tallest column, in at most 24 steps.
     low, top = params.fill_min, float(columns.max())
-    heights = np.arange(low, top + 1e-9, max(0.0025, (top - low) / 24))
+    levels = np.arange(low, top + 1e-9, max(0.0025, (top - low) / 24))
     starts = [np.r_[box, params.outline_exponents[-1], 0.0]]
-    if len(heights):  # an object lower than the fill's floor: no fill
+    if len(levels):  # an object lower than the fill's floor: no fill
         starts.append(np.r_[box, params.outline_exponents[1],
                             np.clip(np.median(columns[raised]), low, top)])
     fits = []
@@ -787,7 +789,7 @@ def _outlined(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarray,
             for _ in range(4):
                 moved = False
                 for i in searched:
-                    trials = (params.outline_exponents if i == 4 else heights if i == 5 else
+                    trials = (params.outline_exponents if i == 4 else levels if i == 5 else
                               np.clip(p[i] + step * np.array([-3, -2, -1, 1, 2, 3]),
                                       lower[i], upper[i]))
                     for t in trials:
