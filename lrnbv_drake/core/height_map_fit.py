@@ -757,9 +757,12 @@ def _outlined(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarray,
         return np.where(inside, np.where(raised, columns, np.where(holes, 0.0, p[5])), 0.0)
 
     # Only the zones that cross a cell some trial can change are evaluated: inside the
-    # smallest outline the columns and holes stay as they are.
-    fixed = _superellipse(x, y, box + np.array([reach, -reach, reach, -reach]), 2.0) \
-        & (raised | holes)
+    # smallest outline the columns and holes stay as they are (an object narrower than two
+    # reaches has none).
+    inner = box + np.array([reach, -reach, reach, -reach])
+    fixed = np.zeros(raised.shape, bool)
+    if inner[1] > inner[0] and inner[3] > inner[2]:
+        fixed = _superellipse(x, y, inner, 2.0) & (raised | holes)
     ray_start, cell, _, _ = _all_crossings(readings.o, readings.d, fx, fy, readings.hmax)
     free = ~fixed.reshape(-1)[cell]
     changing = np.add.reduceat(np.r_[free, False].astype(np.int64), ray_start[:-1]) > 0
