@@ -806,7 +806,7 @@ def _outlined(readings: _Readings, edges_x: np.ndarray, edges_y: np.ndarray,
                 if not moved:
                     break
         fits.append((best, p))
-    (cut_cost, cut), (fill_cost, fill) = fits if len(fits) == 2 else fits * 2
+    (cut_cost, cut), (fill_cost, fill) = fits[0], fits[-1]  # the same fit without a fill
     price = params.fill_cost * max(1.0, fill_cost / near.zones)
     explained = cut_cost <= params.fill_misfit * near.zones
     heights = outlined(fill if explained and fill_cost <= cut_cost - price else cut)
@@ -900,13 +900,12 @@ class _Clip:
         cy = (self.edges_y[:-1] + self.edges_y[1:]) / 2
         inside = ((cx > clip[0]) & (cx < clip[1]))[:, None] \
             & ((cy > clip[2]) & (cy < clip[3]))[None, :]
-        raised = inside & (grid > self.params.min_height)
-        if not (raised & ~self.filled).any():
-            self.plateau = raised & ~self.filled
-            return float(clip[4])
         # Of the columns only: a fill taken in would be refitted as part of the top (a flange
         # 13 mm short).
-        columns = raised & ~self.filled
+        columns = inside & (grid > self.params.min_height) & ~self.filled
+        if not columns.any():
+            self.plateau = columns
+            return float(clip[4])
         reference = float(np.percentile(grid[columns], 99))
         self.plateau = columns & (np.abs(grid - reference) <= self.params.plateau)
         top = reference

@@ -88,6 +88,14 @@ def frames_to_arrays(frames: Sequence[ToFFrame]) -> dict[str, np.ndarray]:
     }
 
 
+def frames_from_arrays(arrays: Mapping[str, np.ndarray]) -> list[ToFFrame]:
+    """The frames `frames_to_arrays` stacked, back one by one."""
+    return [ToFFrame(distance_mm=arrays["distance_mm"][i], status=arrays["status"][i],
+                     sigma_mm=arrays["sigma_mm"][i], sequence=int(arrays["sequence"][i]),
+                     timestamp_us=int(arrays["timestamp_us"][i]))
+            for i in range(len(arrays["distance_mm"]))]
+
+
 def load_recording(path: str | Path) -> dict[str, np.ndarray]:
     """Loads a recording: an .npz (timestamps as int64, also from older files that stored
     uint64), or a `$TOF` journal, e.g. left by a crash (a cut-off last line fails its CRC and

@@ -21,7 +21,7 @@ import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.sensor import ToFFrame
-from lrnbv_drake.experiments.recording import load_recording
+from lrnbv_drake.experiments.recording import frames_from_arrays, load_recording
 from lrnbv_drake.experiments.report import (
     against_truth,
     box_entry,
@@ -79,19 +79,15 @@ def load_episode(folder: str | Path) -> RecordedEpisode:
         report = json.loads(report_path.read_text())
         scenario = load_scenario(data=report["scenario"])
         arrays = load_recording(frames_path)
-        frames = [ToFFrame(distance_mm=arrays["distance_mm"][i], status=arrays["status"][i],
-                           sigma_mm=arrays["sigma_mm"][i], sequence=int(arrays["sequence"][i]),
-                           timestamp_us=int(arrays["timestamp_us"][i]))
-                  for i in range(len(arrays["X_WS"]))]
+        readings = list(zip(frames_from_arrays(arrays), arrays["X_WS"], strict=True))
     except (OSError, ValueError, KeyError, IndexError) as e:
         raise RefitError(f"{folder}: cannot read the episode ({type(e).__name__}: {e})") from e
-    if len(frames) != report.get("n_poses"):
-        raise RefitError(f"{frames_path}: {len(frames)} frames, but {report_path} has "
+    if len(readings) != report.get("n_poses"):
+        raise RefitError(f"{frames_path}: {len(readings)} frames, but {report_path} has "
                          f"{report.get('n_poses')} poses; expected the two files of one episode")
     true = report.get("metrics", {}).get("true_box")
-    return RecordedEpisode(folder, scenario, list(zip(frames, arrays["X_WS"], strict=True)),
-                           _box(report.get("cell_box")), report.get("estimated_box"),
-                           _box(true))
+    return RecordedEpisode(folder, scenario, readings, _box(report.get("cell_box")),
+                           report.get("estimated_box"), _box(true))
 
 
 def refit(episode: RecordedEpisode, scenario: Scenario) -> dict[str, Any]:
@@ -112,5 +108,5 @@ def refit(episode: RecordedEpisode, scenario: Scenario) -> dict[str, Any]:
         "box_estimate_s": seconds,
     }
     if episode.true is not None and entry is not None:
-        out.update(against_truth(rounded(entry), episode.true))
+        out.update(against_truth(entry, episode.true))
     return rounded(out)
