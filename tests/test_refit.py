@@ -5,6 +5,7 @@ import json
 import shutil
 
 import numpy as np
+import pytest
 
 from lrnbv_drake.cli.main import main
 
@@ -77,3 +78,25 @@ def test_an_episode_that_found_no_object_gives_no_box(heu_run, tmp_path, capsys)
     code, (result,) = _refit(tmp_path, folder)
     assert code == 1 and result["estimated_box"] is None and result["container"] is None
     assert "no object found" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("n", [2, 7, 12])
+def test_the_first_poses_give_what_the_episode_had_after_them(heu_run, tmp_path, n):
+    """The map rebuilt offline from the first n frames finds the cell box the episode's own
+    map and clustering had after its n-th pose: the box is the one the episode's
+    poses-to-accuracy metric recorded for that prefix, from the online extraction."""
+    code, (result,) = _refit(tmp_path, heu_run, "--poses", n)
+    report = json.loads((heu_run / "report.json").read_text())
+    assert report["n_poses"] > n
+    assert code == 0 and result["n_poses"] == n
+    assert result["dim_errors_mm"] == report["metrics"]["dim_errors_after_each_pose_mm"][n - 1]
+    assert result["reported_box"] is None  # the episode reported its whole box, not this one
+
+
+def test_more_poses_than_the_episode_has_are_refused_and_nothing_is_written(
+        heu_run, tmp_path, capsys):
+    n = json.loads((heu_run / "report.json").read_text())["n_poses"]
+    code, written = _refit(tmp_path, heu_run, "--poses", n + 1)
+    assert code == 2 and written is None
+    assert f"{heu_run}: cannot take its first {n + 1} poses, it has {n}" in \
+        capsys.readouterr().err

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.perception import extract_object
 from lrnbv_drake.core.sensor import ToFFrame
 from lrnbv_drake.experiments.recording import frames_from_arrays, load_recording
 from lrnbv_drake.experiments.report import (
@@ -30,6 +31,7 @@ from lrnbv_drake.experiments.report import (
     packing_decision,
     rounded,
 )
+from lrnbv_drake.station.parts import extraction_params, map_system
 from lrnbv_drake.station.scenario import Scenario, load_scenario
 
 
@@ -90,6 +92,32 @@ def load_episode(folder: str | Path) -> RecordedEpisode:
                            report.get("estimated_box"), _box(true))
 
 
+def first_poses(episode: RecordedEpisode, n: int) -> RecordedEpisode:
+    """`episode` as if it had stopped after `n` poses: its first `n` readings, and the cell box
+    the extraction finds in the map rebuilt from them (the episode's own mapping and
+    extraction settings: the same map and cells the episode had after its n-th pose).
+
+    Why: whether fewer poses would have done, e.g. how a looser stop rule would have fared on
+    readings taken on the real cell.
+
+    Raises:
+        RefitError: `n` is not between 1 and the episode's number of poses.
+    """
+    if not 1 <= n <= len(episode.readings):
+        raise RefitError(f"{episode.folder}: cannot take its first {n} poses, it has "
+                         f"{len(episode.readings)}; expected 1 to {len(episode.readings)}")
+    if n == len(episode.readings):
+        return episode
+    readings = episode.readings[:n]
+    occupancy = map_system(episode.scenario, period=None)
+    occupancy.insert_recorded(occupancy.CreateDefaultContext(), readings)
+    extraction = extract_object(occupancy.occupancy_map.occupied_centers(),
+                                extraction_params(episode.scenario))
+    return dc.replace(episode, readings=readings,
+                      cells=extraction.oriented_box if extraction.found else None,
+                      reported=None)
+
+
 def refit(episode: RecordedEpisode, scenario: Scenario) -> dict[str, Any]:
     """The box, its interval and container from `episode`'s readings under `scenario` (the
     episode's own, or it with a calibrated `sensor:` section or another estimator), with the
@@ -105,6 +133,7 @@ def refit(episode: RecordedEpisode, scenario: Scenario) -> dict[str, Any]:
                                                                 episode.cells),
                                      fit, episode.cells),
         "reported_box": episode.reported,
+        "n_poses": len(episode.readings),
         "box_estimate_s": seconds,
     }
     if episode.true is not None and entry is not None:

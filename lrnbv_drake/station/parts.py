@@ -159,8 +159,9 @@ def extraction_params(scenario: Scenario) -> ExtractionParams:
         cell_size=m.resolution, enclose_cells=e.enclose_cells, seed=scenario.seed)
 
 
-def map_system(scenario: Scenario, period: float) -> OccupancyMapSystem:
-    """The occupancy map system, updated every `period` seconds."""
+def map_system(scenario: Scenario, period: float | None) -> OccupancyMapSystem:
+    """The occupancy map system, updated every `period` seconds (None: only when forced, or
+    filled directly with `insert_recorded`)."""
     m = scenario.mapping
     if m.insertion not in ("ray", "cone"):
         raise ScenarioError(f"field 'mapping.insertion': expected 'ray' or 'cone', got "
