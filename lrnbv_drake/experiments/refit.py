@@ -6,7 +6,8 @@ Why: the box is fitted to the raw zone readings through the sensor model
 characterize`) or another estimator changes what the same readings say. An episode's folder
 (`lrnbv run`, a campaign's `runs/*`, `lrnbv hardware`) keeps every frame with its sensor pose
 (frames.npz) and the final cell box and the scenario it ran (report.json): that is all the
-estimate needs, so no map is rebuilt and nothing is simulated again.
+estimate needs, so nothing is simulated again. Only an episode cut short (`first_poses`)
+rebuilds its map, from its own frames, for the cell box it had then.
 """
 
 from __future__ import annotations
