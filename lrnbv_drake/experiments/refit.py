@@ -29,6 +29,7 @@ from lrnbv_drake.experiments.report import (
     box_entry,
     container_entry,
     fit_readings,
+    found_box,
     packing_decision,
     rounded,
 )
@@ -114,9 +115,7 @@ def first_poses(episode: RecordedEpisode, n: int) -> RecordedEpisode:
     occupancy.insert_recorded(occupancy.CreateDefaultContext(), readings)
     extraction = extract_object(occupancy.occupancy_map.occupied_centers(),
                                 extraction_params(episode.scenario))
-    return dc.replace(episode, readings=readings,
-                      cells=extraction.oriented_box if extraction.found else None,
-                      reported=None)
+    return dc.replace(episode, readings=readings, cells=found_box(extraction), reported=None)
 
 
 def refit(episode: RecordedEpisode, scenario: Scenario) -> dict[str, Any]:

@@ -54,7 +54,8 @@ def _final_extraction(episode_log: EpisodeLog):
     return episode_log.extractions[-1] if episode_log.extractions else None
 
 
-def _found_box(extraction) -> OrientedBox | None:
+def found_box(extraction) -> OrientedBox | None:
+    """The object's cell box from an extraction, or None when it found no object."""
     return extraction.oriented_box if extraction is not None and extraction.found else None
 
 
@@ -63,7 +64,7 @@ def estimate_box(scenario: Scenario, episode_log: EpisodeLog, interval: bool = T
     """The episode's box as `extraction.estimator` says (`fit_readings`), started from the
     final cell box."""
     return fit_readings(scenario, [(a.frame, a.X_WS) for a in episode_log.acquisitions],
-                        _found_box(_final_extraction(episode_log)), interval)
+                        found_box(_final_extraction(episode_log)), interval)
 
 
 def fit_readings(scenario: Scenario, readings: Sequence[tuple[ToFFrame, np.ndarray]],
@@ -104,7 +105,7 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
     started = time.perf_counter()
     box, fit = estimate_box(scenario, episode_log)
     estimate_seconds = time.perf_counter() - started
-    cells = _found_box(final)
+    cells = found_box(final)
     decision = packing_decision(scenario, box, fit, cells)
     cycle = cycle_time(episode_log, other_computation=(
         sum(map_update_seconds) + sum(episode_log.clustering_seconds) + estimate_seconds))
