@@ -4,9 +4,9 @@ own child process, with frames from the simulated board; one test per fault.
 
 Each test asserts on what the emulator received and did (its record and state) and on the
 files on disk. The only time bounds are the issue's: a fault ends the session within 5 s, a
-lost link shuts down within 3 s of being noticed (`hardware.rtde_timeout`, 0.5 s, after it
-happened), and the watchdog stops the script within 1 s of the session's death. The sessions
-run in this process (the CLI's `main`), except the one that is killed.
+lost link's drivers are closed within 3 s of its being noticed (`hardware.rtde_timeout`,
+0.5 s, after it happened), and the watchdog stops the script within 1 s of the session's
+death. The sessions run in this process (the CLI's `main`), except the one that is killed.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from ur_emulator.sessions import (
 
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.core.robot_safety import RobotFault
+from lrnbv_drake.drivers.rtde_robot import RtdeRobot
 from lrnbv_drake.station.hardware_config import HardwareConfig
 
 pytest.importorskip("rtde_control")
@@ -83,6 +84,10 @@ def test_a_fault_mid_motion_stops_saves_explains_and_resumes(fault, tmp_path, ca
     made = RobotFault.__init__
     monkeypatch.setattr(RobotFault, "__init__",
                         lambda self, *a, **k: noticed.append(time.time()) or made(self, *a, **k))
+    closed = []  # when each RtdeRobot.disconnect returned: the link's shutdown done
+    disconnect = RtdeRobot.disconnect
+    monkeypatch.setattr(RtdeRobot, "disconnect",
+                        lambda self: disconnect(self) or closed.append(time.time()))
     with time_limit(TEST_TIMEOUT), _emulator() as emu:
         trigger = WhenMoving(emu, out, first_pose(), lambda: inject(emu))
         code = main(cli_args(emu, scenario, out))
@@ -102,7 +107,8 @@ def test_a_fault_mid_motion_stops_saves_explains_and_resumes(fault, tmp_path, ca
         starved = starved_since(record, trigger.at)
         assert ended - trigger.at < 5.0 + starved
         if kind == "disconnected":  # noticed (after rtde_timeout), then shut down in 3 s
-            assert ended - min(t for t in noticed if t >= trigger.at) < 3.0 + starved
+            at = min(t for t in noticed if t >= trigger.at)
+            assert min(t for t in closed if t >= at) - at < 3.0 + starved
         assert max(servoj_times(record)) < noticed_by(record, trigger.at)
         assert record["watchdog"][0]["min_frequency"] == HardwareConfig().watchdog_frequency
         assert on_disk(out) == (1, 1, 1)  # the acquisition before the fault, everywhere

@@ -17,10 +17,10 @@ A stop on the controller, reduced mode, speed scaling, a lost connection, a refu
 silent sensor, an unexpected error or Ctrl-C stops the arm, saves, and ends the run with a
 message that says what happened, what is on disk and what to do; once the arm may have moved
 nothing is raised (`SessionResult.moved` tells the two apart). Shutting down is bounded: the
-journal is written first, then the arm is stopped (unless the link is lost), then
-`frames.npz` and `report.json`, and only then are the drivers closed, each step bounded
-(`RtdeRobot.disconnect`). `resume(out_dir)` then continues the episode from wherever the arm
-is now (see its docstring for what it rebuilds).
+journal is written first, then the arm is stopped (unless the link is lost), then the drivers
+are closed, each step bounded (`RtdeRobot.disconnect`), and only then are `frames.npz` and
+`report.json` written, from what is already in memory. `resume(out_dir)` then continues the
+episode from wherever the arm is now (see its docstring for what it rebuilds).
 
 Dry run (`dry_run=True`): the hardware diagram with no hardware. The `PlaybackRobot` plays
 every command back as the measured joints (each command still passes the sender's checks) and
@@ -387,10 +387,16 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
                 _log.warning("stopping the arm failed: %s", e)
 
     try:
-        run = run_loop(parts, realtime_rate=1.0, recorded=recorded, make_monitor=make_monitor,
-                       on_stop=on_stop, interrupt_hint=(
-                           f"the arm was stopped. Continue with `lrnbv hardware --resume "
-                           f"{out_dir}`"))
+        try:
+            run = run_loop(parts, realtime_rate=1.0, recorded=recorded,
+                           make_monitor=make_monitor, on_stop=on_stop, interrupt_hint=(
+                               f"the arm was stopped. Continue with `lrnbv hardware --resume "
+                               f"{out_dir}`"))
+        finally:
+            # The journal is on disk and the arm stopped (on_stop): the drivers close before
+            # the report, whose figures take longer the more poses there are, so that the
+            # shutdown after a lost link waits on nothing but its own bounded steps.
+            parts.cell.hardware.close()
         if run.error is not None:
             _log.error("unexpected error during the session", exc_info=run.error)
         result = SessionResult(out_dir, run.termination, run.fault, run.log,
@@ -405,10 +411,7 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
             problems.append(f"writing frames.npz and report.json failed: "
                             f"{type(e).__name__}: {e}")
     finally:
-        try:
-            parts.cell.hardware.close()
-        finally:
-            held.release()
+        held.release()
     if run.fault is None and not problems:
         try:
             _record_finish(out_dir, result.termination)
