@@ -30,7 +30,7 @@ from lrnbv_drake.experiments.recording import AcquisitionJournal, RecordingError
 from lrnbv_drake.experiments.session import SESSION_FILE, SessionError, resume, run_session
 from lrnbv_drake.experiments.session_monitor import JOURNAL_FILE, MAP_FILE
 from lrnbv_drake.station.cell import make_cell
-from lrnbv_drake.station.cell_models import place_object
+from lrnbv_drake.station.cell_models import HardwareDrivers, place_object
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.scenario import load_scenario
 
@@ -295,6 +295,27 @@ def test_a_map_export_that_fails_still_stops_the_arm_and_writes_the_rest(
     assert "servoStop" in names[names.index("servoJ"):names.index("stopScript")]
     assert (out / "frames.npz").exists() and (out / "report.json").exists()
     assert _journal_lines(out) >= 1
+
+
+def test_a_driver_that_fails_to_close_still_leaves_the_outputs(
+        scenario, q_first_pose, tmp_path, monkeypatch, capsys):
+    """The drivers close before the report is written: one that raises there (anything, not
+    only the RuntimeError and OSError every driver's close is allowed) costs neither
+    frames.npz nor report.json, and the CLI says what failed (exit 1)."""
+    fake_rtde.install(monkeypatch, fake_rtde.FakeArm(q_first_pose))
+    close = HardwareDrivers.close
+
+    def broken_close(drivers):
+        close(drivers)
+        raise TypeError("a driver's close took no arguments")
+    monkeypatch.setattr(HardwareDrivers, "close", broken_close)
+    out = tmp_path / "out"
+    assert _hardware_heu(tmp_path, out) == 1
+    err = capsys.readouterr().err
+    assert "Closing the drivers failed: TypeError: a driver's close took no arguments" in err
+    assert "2 of 2 acquisitions in acquisitions.jsonl, all of them in frames.npz" in err
+    assert np.load(out / "frames.npz")["q"].shape == (2, 6)
+    assert json.loads((out / "report.json").read_text())["n_poses"] == 2
 
 
 def test_a_failure_while_the_episode_is_built_closes_the_robot(scenario, tmp_path, monkeypatch):

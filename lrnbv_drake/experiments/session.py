@@ -396,7 +396,10 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
             # The journal is on disk and the arm stopped (on_stop): the drivers close before
             # the report, whose figures take longer the more poses there are, so that the
             # shutdown after a lost link waits on nothing but its own bounded steps.
-            parts.cell.hardware.close()
+            try:
+                parts.cell.hardware.close()
+            except Exception as e:  # said with the rest; the outputs are still written
+                problems.append(f"closing the drivers failed: {type(e).__name__}: {e}")
         if run.error is not None:
             _log.error("unexpected error during the session", exc_info=run.error)
         result = SessionResult(out_dir, run.termination, run.fault, run.log,
