@@ -5,7 +5,10 @@ test_hardware_faults_checks.py. The URSim test runs only with URSIM_HOST set."""
 from __future__ import annotations
 
 import dataclasses as dc
+import json
 import os
+import subprocess
+import sys
 import time
 
 import fake_rtde
@@ -219,6 +222,49 @@ def test_a_close_that_fails_in_the_client_still_stops_the_program(monkeypatch):
     robot = RtdeRobot("10.0.0.5")
     robot.disconnect()
     assert "dashboard-stop" in arm.names() and not arm.program_running
+
+
+#: ur_rtde's receive interface, as a module for a child process: its destructor notes that
+#: it ran.
+FAKE_RTDE_RECEIVE = """
+import os
+
+
+class RTDEReceiveInterface:
+    def __init__(self, *args):
+        pass
+
+    def __del__(self):
+        with open(os.environ["FAKE_UR_RTDE_DESTROYED"], "a") as f:
+            f.write("RTDEReceiveInterface\\n")
+
+    def isConnected(self):
+        return False
+
+    def disconnect(self):
+        pass
+"""
+
+
+@pytest.mark.parametrize("last", [[], [{"id": 2, "op": "close"}]],
+                         ids=["the session died", "closed"])
+def test_the_client_process_exits_without_running_ur_rtde_destructors(last, tmp_path):
+    """ur_rtde's destructors disconnect (0.5 s per interface, and they can block on a dead
+    link): the client process never runs them, neither when its stdin ends (the session is
+    gone) nor after `close`. Read-only, so that no watchdog keeper holds the clients: when
+    they are freed, they are freed before the exit, as ur_rtde's were (seen with strace)."""
+    (tmp_path / "rtde_receive.py").write_text(FAKE_RTDE_RECEIVE)
+    destroyed = tmp_path / "destroyed.txt"
+    env = {**os.environ, "FAKE_UR_RTDE_DESTROYED": str(destroyed),
+           "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    requests = [{"id": 1, "op": "connect", "args": ["10.0.0.5", -1.0, False, False, 5.0, 10.0]},
+                *last]
+    child = subprocess.run([sys.executable, "-m", "lrnbv_drake.drivers.rtde_client"],
+                           input=b"".join(json.dumps(r).encode() + b"\n" for r in requests),
+                           capture_output=True, env=env, timeout=30)
+    answers = [json.loads(line) for line in child.stdout.splitlines()]
+    assert [(a["id"], a["ok"]) for a in answers] == [(r["id"], True) for r in requests]
+    assert child.returncode == 0 and not destroyed.exists()
 
 
 # --- The systems alone ----------------------------------------------------------------------

@@ -185,11 +185,13 @@ class Clients:
         return _bounded(self._dashboard_stop, timeout=CLOSE_STEP_TIMEOUT)
 
 
-def serve(requests: BinaryIO, answers: BinaryIO) -> None:
+def serve(requests: BinaryIO, answers: BinaryIO) -> Clients:
     """Answers requests until `close` or the end of `requests` (the session is gone).
 
     A request is {"id", "op", "args"}; the answer {"id", "ok", "result"} or {"id", "ok":
-    false, "type", "error"}. `kick` gets no answer."""
+    false, "type", "error"}. `kick` gets no answer. Returns the clients, still alive: freed,
+    ur_rtde's destructors would disconnect, which sleeps 0.5 s per interface and can block
+    on a dead link."""
     clients = Clients()
     operations: dict[str, Callable[..., Any]] = {
         "connect": clients.connect, "read": clients.read, "kick": clients.kick,
@@ -206,8 +208,9 @@ def serve(requests: BinaryIO, answers: BinaryIO) -> None:
             answers.write(json.dumps({"id": request["id"], **answer}).encode() + b"\n")
             answers.flush()
         if op in ("close", "stop_program"):
-            return
+            return clients
     clients.closing.set()
+    return clients
 
 
 def main() -> None:
@@ -216,9 +219,9 @@ def main() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     answers = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)
-    serve(os.fdopen(0, "rb"), answers)
+    _clients = serve(os.fdopen(0, "rb"), answers)  # held to the exit: no destructor runs
     answers.flush()
-    os._exit(0)  # no destructors: ur_rtde's disconnect in them can block on a dead link
+    os._exit(0)
 
 
 if __name__ == "__main__":
