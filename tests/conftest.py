@@ -18,3 +18,14 @@ def heu_run(tmp_path_factory):
     assert main(["run", "--planner", "heu", "--object", "horizontal_box", "--seed", "3",
                  "--out", str(out)]) == 0
     return out
+
+
+@pytest.fixture(scope="session")
+def compiled_kernels():
+    """The numba kernels `make` compiles after installing, loaded (or compiled, on a cache an
+    edit made cold) in this process: a test that bounds a session's wall time bounds the
+    session, not numba's first compile of the report's fit (about 5 s) or the IK."""
+    from lrnbv_drake.core import height_map_fit, kinematics, poses
+
+    for module in (height_map_fit, kinematics, poses):
+        module.compile_kernels()

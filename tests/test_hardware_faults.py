@@ -38,6 +38,7 @@ from lrnbv_drake.drivers.rtde_robot import RtdeRobot
 from lrnbv_drake.station.hardware_config import HardwareConfig
 
 pytest.importorskip("rtde_control")
+pytestmark = pytest.mark.usefixtures("compiled_kernels")
 
 TEST_TIMEOUT = 60.0  # seconds, per test
 _addresses = itertools.count(128)  # test_ur_emulator.py counts from 0 in the same worker

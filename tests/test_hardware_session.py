@@ -35,6 +35,8 @@ from lrnbv_drake.station.cell_models import HardwareDrivers, place_object
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.scenario import load_scenario
 
+pytestmark = pytest.mark.usefixtures("compiled_kernels")
+
 SCENARIO = """
 max_poses: 2
 robot: {robot_ip: fake-ur5e}
