@@ -7,6 +7,7 @@ nothing asserts on how long anything took."""
 
 from __future__ import annotations
 
+import dataclasses as dc
 import gc
 import json
 import shutil
@@ -227,10 +228,12 @@ def test_a_lost_link_ends_the_run_in_bounded_time_without_blocking_calls(
     arm.on_servo = hook = _when_moving_to_the_second_pose(tmp_path, q_first_pose,
                                                           fake_rtde.FakeArm.drop_link)
     fake_rtde.install(monkeypatch, arm)
-    closed = []  # when RtdeRobot.disconnect returned
-    disconnect = RtdeRobot.disconnect
+    closed, written = [], []  # when RtdeRobot.disconnect returned, when the outputs began
+    disconnect, write = RtdeRobot.disconnect, session.write_outputs
     monkeypatch.setattr(RtdeRobot, "disconnect",
                         lambda self: disconnect(self) or closed.append(time.monotonic()))
+    monkeypatch.setattr(session, "write_outputs",
+                        lambda *args: written.append(time.monotonic()) or write(*args))
     result = run_session(scenario, "heu", tmp_path, confirm=lambda text: True)
     ended = time.monotonic()
     assert hook.at is not None and result.fault == "disconnected" and result.moved
@@ -239,6 +242,7 @@ def test_a_lost_link_ends_the_run_in_bounded_time_without_blocking_calls(
     assert not {"servoStop", "stopScript"} & {c.name for c in dropped}
     last_servo = max(c.wall_time for c in dropped if c.name == "servoJ")
     assert closed[-1] - last_servo < 3.0  # shutdown after the loss was detected
+    assert closed[-1] < written[0]  # which waited for no report
     assert ended - hook.at < 5.0  # the whole run after the fault
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["fault"] == "disconnected" and report["n_poses"] == 1 == _journal_lines(tmp_path)
@@ -307,23 +311,32 @@ def test_a_map_export_that_fails_still_stops_the_arm_and_writes_the_rest(
 
 def test_a_driver_that_fails_to_close_still_leaves_the_outputs(
         scenario, q_first_pose, tmp_path, monkeypatch, capsys):
-    """The drivers close before the report is written: one that raises there (anything, not
-    only the RuntimeError and OSError every driver's close is allowed) costs neither
-    frames.npz nor report.json, and the CLI says what failed (exit 1)."""
+    """The drivers close before the report is written, its sensor counters read before they
+    close (closing flushes a half-received line). A close that raises anything, not only
+    the RuntimeError and OSError every driver's close is allowed, costs neither frames.npz
+    nor report.json nor the finished mark (nothing is lost, so there is nothing to resume),
+    and the CLI says what failed and what to check (exit 1)."""
     fake_rtde.install(monkeypatch, fake_rtde.FakeArm(q_first_pose))
-    close = HardwareDrivers.close
+    close, at_close = HardwareDrivers.close, []
 
     def broken_close(drivers):
+        at_close.append(drivers.sensor.stats)
         close(drivers)
+        # What the flush of a half-received line does to the counters (the real board's is
+        # mid-line at any moment, the simulated one between frames here).
+        monkeypatch.setattr(ToFSerialReader, "stats", property(
+            lambda reader: dc.replace(at_close[0], truncated=at_close[0].truncated + 1)))
         raise TypeError("a driver's close took no arguments")
     monkeypatch.setattr(HardwareDrivers, "close", broken_close)
     out = tmp_path / "out"
     assert _hardware_heu(tmp_path, out) == 1
     err = capsys.readouterr().err
-    assert "Closing the drivers failed: TypeError: a driver's close took no arguments" in err
-    assert "2 of 2 acquisitions in acquisitions.jsonl, all of them in frames.npz" in err
+    assert "STOPPED (error)" in err and "Closing the drivers failed: TypeError: a driver's " \
+        "close took no arguments; check on the pendant that no program is running" in err
     assert np.load(out / "frames.npz")["q"].shape == (2, 6)
-    assert json.loads((out / "report.json").read_text())["n_poses"] == 2
+    report = json.loads((out / "report.json").read_text())
+    assert report["n_poses"] == 2 and report["sensor_stats"] == dc.asdict(at_close[0])
+    assert "finished" in json.loads((out / SESSION_FILE).read_text())
 
 
 def test_a_failure_while_the_episode_is_built_closes_the_robot(scenario, tmp_path, monkeypatch):

@@ -18,6 +18,7 @@ from lrnbv_drake.core.tof_protocol import MAX_LINE_BYTES
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
 from lrnbv_drake.drivers.tof_serial import SensorTimeout, ToFSerialReader
 from lrnbv_drake.station.cell import make_cell
+from lrnbv_drake.station.cell_models import close_all
 from lrnbv_drake.station.hardware_cell import (
     TRANSPORT_LATENCY,
     check_hardware_config,
@@ -110,6 +111,23 @@ def test_make_cell_hardware_streams_simulated_frames_through_the_serial_driver()
         assert 0 <= frame.timestamp_us <= context.get_time() * 1e6
     finally:
         station.hardware.close()
+
+
+def test_closing_goes_on_past_a_driver_that_fails_and_raises_a_bug_last():
+    """Newest first, every one: a sensor driver that raises, whatever it raises, cannot leave
+    the robot connected. An OSError is only logged; a bug is raised once all are closed."""
+    closed = []
+
+    def failing(error):
+        def close():
+            closed.append(type(error).__name__)
+            raise error
+        return close
+    to_close = [lambda: closed.append("robot"), failing(OSError("the port is gone")),
+                failing(TypeError("a bug")), lambda: closed.append("board")]
+    with pytest.raises(TypeError, match="a bug"):
+        close_all(to_close)
+    assert closed == ["board", "TypeError", "OSError", "robot"] and to_close == []
 
 
 @pytest.mark.parametrize("data, field", [

@@ -246,25 +246,32 @@ class RTDEReceiveInterface:
 """
 
 
-@pytest.mark.parametrize("last", [[], [{"id": 2, "op": "close"}]],
-                         ids=["the session died", "closed"])
-def test_the_client_process_exits_without_running_ur_rtde_destructors(last, tmp_path):
+CONNECT = {"id": 1, "op": "connect", "args": ["10.0.0.5", -1.0, False, False, 5.0, 10.0]}
+
+
+@pytest.mark.parametrize("lines, answered, code", [
+    ([CONNECT], [1], 0),
+    ([CONNECT, {"id": 2, "op": "close"}], [1, 2], 0),
+    ([CONNECT, "not a request"], [1], 1),
+], ids=["the session died", "closed", "a bad request"])
+def test_the_client_process_exits_without_running_ur_rtde_destructors(lines, answered, code,
+                                                                      tmp_path):
     """ur_rtde's destructors disconnect (0.5 s per interface, and they can block on a dead
     link): the client process never runs them, neither when its stdin ends (the session is
-    gone) nor after `close`. Read-only, so that no watchdog keeper holds the clients: when
-    they are freed, they are freed before the exit, as ur_rtde's were (seen with strace)."""
+    gone), nor after `close`, nor when it fails. Read-only, so that no watchdog keeper holds
+    the clients: when they are freed, they are freed before the exit, as ur_rtde's were
+    (seen with strace)."""
     (tmp_path / "rtde_receive.py").write_text(FAKE_RTDE_RECEIVE)
     destroyed = tmp_path / "destroyed.txt"
     env = {**os.environ, "FAKE_UR_RTDE_DESTROYED": str(destroyed),
            "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
-    requests = [{"id": 1, "op": "connect", "args": ["10.0.0.5", -1.0, False, False, 5.0, 10.0]},
-                *last]
     child = subprocess.run([sys.executable, "-m", "lrnbv_drake.drivers.rtde_client"],
-                           input=b"".join(json.dumps(r).encode() + b"\n" for r in requests),
+                           input=b"".join((line if isinstance(line, str) else json.dumps(line))
+                                          .encode() + b"\n" for line in lines),
                            capture_output=True, env=env, timeout=30)
     answers = [json.loads(line) for line in child.stdout.splitlines()]
-    assert [(a["id"], a["ok"]) for a in answers] == [(r["id"], True) for r in requests]
-    assert child.returncode == 0 and not destroyed.exists()
+    assert [(a["id"], a["ok"]) for a in answers] == [(i, True) for i in answered]
+    assert child.returncode == code and not destroyed.exists()
 
 
 # --- The systems alone ----------------------------------------------------------------------

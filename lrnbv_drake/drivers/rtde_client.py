@@ -26,6 +26,7 @@ import os
 import signal
 import threading
 import time
+import traceback
 from collections.abc import Callable
 from typing import Any, BinaryIO
 
@@ -219,8 +220,12 @@ def main() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     answers = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)
-    _clients = serve(os.fdopen(0, "rb"), answers)  # held to the exit: no destructor runs
-    answers.flush()
+    try:
+        _clients = serve(os.fdopen(0, "rb"), answers)  # held to the exit: no destructor runs
+        answers.flush()
+    except BaseException:  # e.g. the session died mid-answer (a broken pipe), a bad request
+        traceback.print_exc()
+        os._exit(1)  # the traceback still holds serve's frame, and the clients in it
     os._exit(0)
 
 

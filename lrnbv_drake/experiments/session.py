@@ -51,7 +51,7 @@ from pydrake.systems.framework import Context
 from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
 from lrnbv_drake.core.robot_safety import Ur5eStatus, read_status, tcp_pose_error
 from lrnbv_drake.drivers.rtde_robot import RtdeRobot
-from lrnbv_drake.drivers.tof_serial import ToFSerialReader, check_resolution
+from lrnbv_drake.drivers.tof_serial import SerialStats, ToFSerialReader, check_resolution
 from lrnbv_drake.experiments.episode import (
     PLANNERS,
     EpisodeDiagram,
@@ -235,7 +235,7 @@ def _record_finish(out_dir: Path, termination: str) -> None:
 
 
 def _report(planner: str, scenario: Scenario, parts: EpisodeDiagram, run: EpisodeRun,
-            result: SessionResult, dry_run: bool) -> dict[str, Any]:
+            result: SessionResult, dry_run: bool, sensor_stats: SerialStats) -> dict[str, Any]:
     report = episode_report(planner, scenario, run.log, termination=result.termination,
                             wall_seconds=run.wall_seconds, sim_seconds=run.sim_seconds,
                             map_update_seconds=parts.map_system.insert_seconds)
@@ -247,7 +247,7 @@ def _report(planner: str, scenario: Scenario, parts: EpisodeDiagram, run: Episod
         "resumed_from": result.resumed_from,
         "realtime_resets": result.realtime_resets,
         "wall_seconds": run.wall_seconds,
-        "sensor_stats": dc.asdict(parts.cell.hardware.sensor.stats),
+        "sensor_stats": dc.asdict(sensor_stats),
     })
     return report
 
@@ -393,13 +393,12 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
                                f"the arm was stopped. Continue with `lrnbv hardware --resume "
                                f"{out_dir}`"))
         finally:
-            # The journal is on disk and the arm stopped (on_stop): the drivers close before
+            # After on_stop (the journal on disk, the arm stopped) the drivers close before
             # the report, whose figures take longer the more poses there are, so that the
-            # shutdown after a lost link waits on nothing but its own bounded steps.
-            try:
-                parts.cell.hardware.close()
-            except Exception as e:  # said with the rest; the outputs are still written
-                problems.append(f"closing the drivers failed: {type(e).__name__}: {e}")
+            # shutdown after a lost link waits on nothing but its own bounded steps. The
+            # sensor's counters are read first: closing flushes a half-received line.
+            sensor_stats = parts.cell.hardware.sensor.stats
+            closing_failed = _close_drivers(parts)
         if run.error is not None:
             _log.error("unexpected error during the session", exc_info=run.error)
         result = SessionResult(out_dir, run.termination, run.fault, run.log,
@@ -407,8 +406,8 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
                                realtime_resets=monitors[-1].realtime_resets,
                                moved=not dry_run, error=run.error)
         try:
-            write_outputs(out_dir, run, _report(planner, scenario, parts, run, result, dry_run),
-                          meshcat, scenario)
+            write_outputs(out_dir, run, _report(planner, scenario, parts, run, result, dry_run,
+                                                sensor_stats), meshcat, scenario)
         except Exception as e:  # the arm has moved: said as such, never as "nothing moved"
             saved = False
             problems.append(f"writing frames.npz and report.json failed: "
@@ -423,9 +422,24 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
     if run.fault == "error" or problems:
         result.termination = _after_the_fact(result, monitors[-1].written, problems, saved)
         result.fault = result.fault or "error"  # not done: what it left is not all on disk
+    if closing_failed:  # everything is on disk, but the cell may not be as it should
+        result.termination += f". {closing_failed}"
+        result.fault = result.fault or "error"
     if held.pending:
         result.termination += " (Ctrl-C while saving waited until everything was on disk)"
     return result
+
+
+def _close_drivers(parts: EpisodeDiagram) -> str:
+    """Closes the cell's drivers (every one, whatever another raises); what failed, as a
+    sentence, or ''."""
+    try:
+        parts.cell.hardware.close()
+    except Exception as e:  # a driver's bug; RuntimeError and OSError are only logged
+        _log.error("closing the drivers failed", exc_info=e)
+        return (f"Closing the drivers failed: {type(e).__name__}: {e}; check on the pendant "
+                f"that no program is running")
+    return ""
 
 
 def _after_the_fact(result: SessionResult, journaled: int, problems: list[str],

@@ -62,12 +62,20 @@ class HardwareDrivers:
 
 
 def close_all(to_close: list[Callable[[], None]]) -> None:
+    """Calls each, newest first, whatever an earlier one raised, so that a sensor driver that
+    fails cannot leave the robot connected. A driver's RuntimeError or OSError is logged; any
+    other error is raised once all are closed (the first of them)."""
+    unexpected: Exception | None = None
     while to_close:
         close = to_close.pop()
         try:
             close()
         except (RuntimeError, OSError) as e:
             _log.warning("closing a hardware driver failed: %s", e)
+        except Exception as e:  # a bug in a driver: raised after the others are closed
+            unexpected = unexpected or e
+    if unexpected is not None:
+        raise unexpected
 
 
 @dc.dataclass
