@@ -25,9 +25,7 @@ $(STAMP): pyproject.toml
 	@# Compile the numba kernels of the shape estimate, the kinematics and look_at into their
 	@# on-disk cache now: cold, the first report of every process would wait about 5 s for them
 	@# (after a fault on the cell too), its first IK 5.5 s.
-	$(BIN)/python -m lrnbv_drake.core.height_map_fit
-	$(BIN)/python -m lrnbv_drake.core.kinematics
-	$(BIN)/python -m lrnbv_drake.core.poses
+	$(BIN)/python -m lrnbv_drake.core.kernels
 	touch $(STAMP)
 
 run: $(STAMP)

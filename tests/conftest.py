@@ -25,7 +25,6 @@ def compiled_kernels():
     """The numba kernels `make` compiles after installing, loaded (or compiled, on a cache an
     edit made cold) in this process: a test that bounds a session's wall time bounds the
     session, not numba's first compile of the report's fit (about 5 s) or the IK."""
-    from lrnbv_drake.core import height_map_fit, kinematics, poses
+    from lrnbv_drake.core.kernels import compile_kernels
 
-    for module in (height_map_fit, kinematics, poses):
-        module.compile_kernels()
+    compile_kernels()

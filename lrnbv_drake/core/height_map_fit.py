@@ -1068,7 +1068,7 @@ def compile_kernels() -> None:
     """Runs the shape estimate once on readings of a box predicted from two views, so that numba
     compiles its kernels and caches them on disk. A cold cache costs a process about 5 s the
     first time it fits (the report written after a fault on the real cell too): `make` calls
-    this right after installing."""
+    this right after installing (`python -m lrnbv_drake.core.kernels`)."""
     model = SensorModelParams()
     box = OrientedBox(np.array([0.5, 0.0, 0.05]), np.array([0.12, 0.08, 0.10]), 0.0)
     x = _as_vector(box)
@@ -1081,6 +1081,3 @@ def compile_kernels() -> None:
         rays = rays.extend(view)
     fit = fit_box(rays, box, 0.0, model)
     fit_height_map(rays, fit.box if fit else box, 0.0, model)
-
-if __name__ == "__main__":
-    compile_kernels()

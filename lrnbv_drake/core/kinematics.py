@@ -291,7 +291,7 @@ def inverse_kinematics(
 def compile_kernels() -> None:
     """Compiles the kinematics kernels into numba's on-disk cache: cold, the first IK of every
     process (the first planning iteration) would wait seconds for them. `make` runs this after
-    installing (`python -m lrnbv_drake.core.kinematics`)."""
+    installing (`python -m lrnbv_drake.core.kernels`)."""
     inverse_kinematics(forward_kinematics(HOME))
 
 
@@ -352,7 +352,3 @@ def closest_solution(
     q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
     found = np.any(ok, axis=-1)
     return np.where(found[..., None], q, q_current), found
-
-
-if __name__ == "__main__":
-    compile_kernels()

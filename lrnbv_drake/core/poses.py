@@ -67,9 +67,5 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0
 
 def compile_kernels() -> None:
     """Compiles the look-at kernel into numba's on-disk cache, so that the first planning
-    iteration of a process does not wait for it (`python -m lrnbv_drake.core.poses`)."""
+    iteration of a process does not wait for it (`python -m lrnbv_drake.core.kernels`)."""
     look_at([0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
-
-
-if __name__ == "__main__":
-    compile_kernels()
