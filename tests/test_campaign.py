@@ -461,7 +461,8 @@ def test_command_line_defaults_and_errors(tmp_path, capsys):
 
 def test_object_sets(tmp_path):
     assert [o.label for o in resolve_objects("paper")] == list(objects.PAPER_OBJECTS)
-    assert [o.label for o in resolve_objects("all")] == list(objects.BUILTIN_OBJECTS)
+    assert [o.label for o in resolve_objects("all")] == [*objects.PAPER_OBJECTS,
+                                                          *objects.FAMILY_OBJECTS]
     folder = tmp_path / "meshes"
     folder.mkdir()
     with pytest.raises(CampaignError, match="holds no"):

@@ -21,6 +21,7 @@ from lrnbv_drake.cli.run import EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from lrnbv_drake.cli.scenario_args import add_containers_argument, add_preset_argument
 from lrnbv_drake.experiments.campaign.plan import (
     BACKENDS,
+    FAMILY_PLACEMENT,
     CampaignConfig,
     CampaignError,
     PlacementRange,
@@ -72,9 +73,10 @@ def add_benchmark_command(subparsers: argparse._SubParsersAction) -> argparse.Ar
     parser.add_argument("--planners", type=_planners, default=PLANNERS,
                         help=f"comma-separated planners (default: {','.join(PLANNERS)})")
     parser.add_argument("--objects", default="paper",
-                        help="paper (the four), all (every built-in), a folder of .obj/.stl/"
-                             ".ply meshes, or comma-separated built-in names or mesh files "
-                             "(default: paper)")
+                        help="paper (the four), family (the generated shapes, placed at "
+                             "random over the table unless --random-placement says where), "
+                             "all (both), a folder of .obj/.stl/.ply meshes, or "
+                             "comma-separated built-in names or mesh files (default: paper)")
     parser.add_argument("--trials", type=positive_int, default=5,
                         help="trials per planner and object (default 5)")
     parser.add_argument("--out", required=True,
@@ -124,7 +126,8 @@ def config_from_args(args: argparse.Namespace) -> CampaignConfig:
         raise CampaignError(f"{', '.join(given)} set the random placement's ranges; add "
                             f"--random-placement (without it every trial uses the scenario's "
                             f"placement)")
-    placement = (PlacementRange(**dict(given.values())) if args.random_placement else None)
+    placement = (PlacementRange(**dict(given.values())) if args.random_placement
+                 else FAMILY_PLACEMENT if args.objects == "family" else None)
     config = CampaignConfig(
         out_dir=Path(args.out), planners=tuple(args.planners), objects=found,
         trials=args.trials, scenario=scenario,

@@ -1,4 +1,4 @@
-"""`lrnbv objects`: the built-in objects, the paper's first."""
+"""`lrnbv objects`: the built-in objects, the paper's first, then the generated family."""
 
 from __future__ import annotations
 
@@ -14,9 +14,6 @@ def add_objects_command(subparsers: argparse._SubParsersAction) -> None:
 
 def run_objects_command(args: argparse.Namespace) -> int:
     """Prints one line per built-in object; returns the exit code."""
-    for name in objects.PAPER_OBJECTS:
-        print(f"{name:16s} {objects.BUILTIN_OBJECTS[name].description}")
-    for name, entry in objects.BUILTIN_OBJECTS.items():
-        if name not in objects.PAPER_OBJECTS:
-            print(f"{name:16s} {entry.description}")
+    for name in (*objects.PAPER_OBJECTS, *objects.FAMILY_OBJECTS):
+        print(f"{name:20s} {objects.describe(name)}")
     return 0

@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from lrnbv_drake.core import object_family
+
 OBJECTS_DIR = Path(__file__).resolve().parents[2] / "models" / "objects"
 MESH_SUFFIXES: tuple[str, ...] = (".obj", ".stl", ".ply")
 #: Most surface samples `sample_surface` draws: 50 m^2 at the coverage metric's 5 mm spacing,
@@ -56,15 +58,31 @@ BUILTIN_OBJECTS: dict[str, BuiltinObject] = {
 }
 #: The paper's four test objects, in the order of its results figure.
 PAPER_OBJECTS: tuple[str, ...] = ("horizontal_box", "vertical_box", "gripper", "flange")
+#: The generated family (`object_family`): shapes nobody tuned the estimator on.
+FAMILY_OBJECTS: tuple[str, ...] = tuple(object_family.FAMILY)
+
+
+def is_builtin(name: str) -> bool:
+    """Whether `name` is a shipped mesh or a member of the generated family."""
+    return name in BUILTIN_OBJECTS or name in object_family.FAMILY
+
+
+def describe(name: str) -> str:
+    """What a built-in object is, in a line."""
+    if name in BUILTIN_OBJECTS:
+        return BUILTIN_OBJECTS[name].description
+    shape = object_family.FAMILY[name]
+    return f"{shape.kind}: {shape.description}"
 
 
 def _expected_input() -> str:
-    names = ", ".join(BUILTIN_OBJECTS)
-    return f"expected one of {names} or a path to an .obj, .stl or .ply file"
+    return ("expected one of the paper's objects (" + ", ".join(PAPER_OBJECTS) + "), a "
+            "family object (`lrnbv objects` lists them) or a path to an .obj, .stl or .ply file")
 
 
 def load_object_mesh(name_or_path: str | os.PathLike[str], scale: float = 1.0) -> trimesh.Trimesh:
-    """Loads a built-in object by name, or any OBJ/STL/PLY file, scaled about its origin.
+    """Loads a built-in object by name (a shipped mesh or a family member), or any OBJ/STL/PLY
+    file, scaled about its origin.
 
     Raises:
         ValueError: unknown name, unsupported extension, a file without triangles, or a scale
@@ -78,6 +96,11 @@ def load_object_mesh(name_or_path: str | os.PathLike[str], scale: float = 1.0) -
         factor = math.nan
     if not (math.isfinite(factor) and factor > 0):
         raise ValueError(f"scale for '{label}' must be a positive finite number; got {scale!r}")
+    if label in object_family.FAMILY:
+        mesh = object_family.family_mesh(label)
+        if factor != 1.0:
+            mesh.apply_scale(factor)
+        return mesh
     if label in BUILTIN_OBJECTS:
         path = BUILTIN_OBJECTS[label].path
     else:
@@ -98,12 +121,32 @@ def load_object_mesh(name_or_path: str | os.PathLike[str], scale: float = 1.0) -
         raise ValueError(f"could not read a mesh from '{label}': {err}") from err
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"'{label}' contains no triangles: expected a triangle mesh")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise ValueError(f"'{label}' has vertices that are not finite numbers (NaN or inf)")
+    thickness = _thinnest_extent(mesh.vertices)
+    if thickness < MIN_THICKNESS * max(float(np.max(mesh.extents)), 1e-12):
+        raise ValueError(f"'{label}' is flat: across its thinnest direction it spans "
+                         f"{thickness:.3g} mesh units, {thickness / max(mesh.extents):.1e} of "
+                         f"its size; a sensor sees a solid, expected a mesh with thickness")
     # OBJ normals (export_obj writes one per face) split shared corners; rejoin them so a closed
     # surface reads back closed.
     mesh.merge_vertices(merge_tex=True, merge_norm=True)
     if factor != 1.0:
         mesh.apply_scale(factor)
     return mesh
+
+
+#: Thinnest a mesh may be across any direction, as a share of its largest extent: a sheet
+#: without thickness has no convex hull to plan motions around (`cell_models`).
+MIN_THICKNESS = 1e-4
+
+
+def _thinnest_extent(vertices: np.ndarray) -> float:
+    """How far the vertices spread along their direction of least spread."""
+    centred = vertices - vertices.mean(axis=0)
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)
+    along = centred @ axes[-1]
+    return float(along.max() - along.min())
 
 
 @dc.dataclass(frozen=True)

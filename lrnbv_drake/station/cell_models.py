@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.geometry import (
+    Convex,
     GeometryInstance,
     MakePhongIllustrationProperties,
     Mesh,
@@ -108,6 +109,9 @@ def add_cell_models(plant: MultibodyPlant, scenario: Scenario) -> CellModels:
     """Adds the robot, table and sensor mount (from the directives) and the object to `plant`.
 
     The object is anchored to the world at its resting pose: it does not move during an episode.
+    Its perception (rendered) geometry is the exact mesh; its proximity geometry, which the
+    motion planner and the self filter query, is the mesh's convex hull: Drake's distance
+    queries on a general mesh refuse sharp edges, open surfaces and thin parts, a hull never.
     """
     parser = make_parser(plant)
     directives_url = scenario.cell.directives
@@ -121,10 +125,10 @@ def add_cell_models(plant: MultibodyPlant, scenario: Scenario) -> CellModels:
     mesh_dir = tempfile.TemporaryDirectory(prefix="lrnbv_object_")
     obj_path = Path(mesh_dir.name) / "object.obj"
     objects.export_obj(placed.mesh, obj_path)
-    shape = Mesh(str(obj_path), 1.0)
     world = plant.world_body()
-    plant.RegisterVisualGeometry(world, RigidTransform(), shape, "object", OBJECT_RGBA)
-    plant.RegisterCollisionGeometry(world, RigidTransform(), shape, "object",
+    plant.RegisterVisualGeometry(world, RigidTransform(), Mesh(str(obj_path)), "object",
+                                 OBJECT_RGBA)
+    plant.RegisterCollisionGeometry(world, RigidTransform(), Convex(str(obj_path)), "object",
                                     CoulombFriction(0.5, 0.5))
     return CellModels(ur5e=ur5e, placed_object=placed, mesh_dir=mesh_dir)
 

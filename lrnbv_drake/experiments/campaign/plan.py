@@ -53,6 +53,11 @@ class PlacementRange:
         return tuple(float(rng.uniform(lo, hi)) for lo, hi in (self.x, self.y, self.yaw_deg))
 
 
+#: Where `--objects family` places its shapes by default: the part of the table the arm
+#: views from every side (an object there keeps most of HEU's 13 poses reachable).
+FAMILY_PLACEMENT = PlacementRange(x=(0.42, 0.58), y=(-0.12, 0.12))
+
+
 @dc.dataclass
 class CampaignConfig:
     """One campaign: what runs (planners x objects x trials) and how."""
@@ -135,13 +140,17 @@ def plan_episodes(config: CampaignConfig) -> list[Episode]:
 
 
 def resolve_objects(spec: str) -> tuple[CampaignObject, ...]:
-    """`paper`, `all`, a folder of meshes, or comma-separated built-in names / mesh files."""
-    expected = ("expected paper, all, a folder of .obj/.stl/.ply meshes, or comma-separated "
-                f"built-in objects ({', '.join(objects.BUILTIN_OBJECTS)}) or mesh files")
+    """`paper`, `family`, `all`, a folder of meshes, or comma-separated built-in names / mesh
+    files."""
+    expected = ("expected paper, family, all, a folder of .obj/.stl/.ply meshes, or "
+                "comma-separated built-in objects (`lrnbv objects`) or mesh files")
     if spec == "paper":
         return tuple(CampaignObject(n, n) for n in objects.PAPER_OBJECTS)
+    if spec == "family":
+        return tuple(CampaignObject(n, n) for n in objects.FAMILY_OBJECTS)
     if spec == "all":
-        return tuple(CampaignObject(n, n) for n in objects.BUILTIN_OBJECTS)
+        return tuple(CampaignObject(n, n) for n in (*objects.PAPER_OBJECTS,
+                                                    *objects.FAMILY_OBJECTS))
     folder = Path(spec)
     if folder.is_dir():
         meshes = sorted(p for p in folder.iterdir()
@@ -152,7 +161,7 @@ def resolve_objects(spec: str) -> tuple[CampaignObject, ...]:
     else:
         meshes = []
         for item in filter(None, (s.strip() for s in spec.split(","))):
-            if item in objects.BUILTIN_OBJECTS:
+            if objects.is_builtin(item):
                 meshes.append(item)
             elif Path(item).suffix.lower() in objects.MESH_SUFFIXES:
                 meshes.append(Path(item))

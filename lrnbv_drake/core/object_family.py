@@ -1,0 +1,336 @@
+"""The generated family of objects the estimator is developed and measured against: shapes
+nobody tuned it on, from flat cartons to mugs, rings, two parts with a gap and soft blobs.
+
+Each shape is built here from trimesh primitives and booleans (manifold3d), its sizes drawn
+from its own seeded generator within its class's ranges, so the family is the same on every
+machine and nothing is shipped or downloaded. A shape is turned about z so that its axis-aligned
+box is its minimum-area box, and rests with its lowest point at z = 0 and its footprint centred
+on the origin, as the built-in meshes do (`objects.py`): its true box is then the box a packing
+engineer would measure.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import functools
+import math
+from collections.abc import Callable
+
+import numpy as np
+import shapely
+import trimesh
+
+#: Segments of a full circle (cylinders, tori) and subdivisions of a sphere.
+_SEGMENTS = 48
+_SUBDIVISIONS = 3
+
+
+@dc.dataclass(frozen=True)
+class FamilyShape:
+    """One member of the family: its class, what it stands for, and how it is built."""
+
+    kind: str
+    description: str
+    build: Callable[[np.random.Generator], trimesh.Trimesh]
+    seed: int
+
+
+def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(rng.uniform(lo, hi))
+
+
+def _box(x: float, y: float, z: float, at: tuple[float, float, float] = (0, 0, 0)
+         ) -> trimesh.Trimesh:
+    """A box of sides x, y, z standing on z = at[2], centred on (at[0], at[1])."""
+    mesh = trimesh.creation.box(extents=(x, y, z))
+    mesh.apply_translation((at[0], at[1], at[2] + z / 2))
+    return mesh
+
+
+def _cylinder(radius: float, height: float, at: tuple[float, float, float] = (0, 0, 0)
+              ) -> trimesh.Trimesh:
+    """An upright cylinder standing on z = at[2]."""
+    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=_SEGMENTS)
+    mesh.apply_translation((at[0], at[1], at[2] + height / 2))
+    return mesh
+
+
+def _lying(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """`mesh` turned a quarter about y, so that its z axis lies along x."""
+    mesh = mesh.copy()
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (0, 1, 0)))
+    return mesh
+
+
+def _ellipsoid(a: float, b: float, c: float, at: tuple[float, float, float] = (0, 0, 0)
+               ) -> trimesh.Trimesh:
+    mesh = trimesh.creation.icosphere(subdivisions=_SUBDIVISIONS, radius=1.0)
+    mesh.apply_scale((a, b, c))
+    mesh.apply_translation(at)
+    return mesh
+
+
+def _union(*parts: trimesh.Trimesh) -> trimesh.Trimesh:
+    return trimesh.boolean.union(list(parts), engine="manifold")
+
+
+def _minus(mesh: trimesh.Trimesh, *cut: trimesh.Trimesh) -> trimesh.Trimesh:
+    return trimesh.boolean.difference([mesh, *cut], engine="manifold")
+
+
+# --- the classes --------------------------------------------------------------------------
+
+def _boxes(lo: tuple[float, float, float], hi: tuple[float, float, float]):
+    return lambda rng: _box(*(_u(rng, a, b) for a, b in zip(lo, hi, strict=True)))
+
+
+def _lying_box(rng: np.random.Generator) -> trimesh.Trimesh:
+    return _box(_u(rng, 0.22, 0.30), _u(rng, 0.06, 0.09), _u(rng, 0.05, 0.07))
+
+
+def _can(rng: np.random.Generator) -> trimesh.Trimesh:
+    return _cylinder(_u(rng, 0.033, 0.0425), _u(rng, 0.10, 0.13))
+
+
+def _tub(rng: np.random.Generator) -> trimesh.Trimesh:
+    radius, height = _u(rng, 0.075, 0.10), _u(rng, 0.08, 0.12)
+    return _minus(_cylinder(radius, height), _cylinder(radius - 0.004, height, (0, 0, 0.004)))
+
+
+def _lying_cylinder(rng: np.random.Generator) -> trimesh.Trimesh:
+    return _lying(_cylinder(_u(rng, 0.035, 0.05), _u(rng, 0.18, 0.26)))
+
+
+def _sphere(rng: np.random.Generator) -> trimesh.Trimesh:
+    r = _u(rng, 0.04, 0.06)
+    return _ellipsoid(r, r, r)
+
+
+def _fruit(lo: float, hi: float):
+    def build(rng: np.random.Generator) -> trimesh.Trimesh:
+        size = _u(rng, lo, hi)
+        return _ellipsoid(size / 2, size / 2 * _u(rng, 0.85, 0.95), size / 2 * _u(rng, 0.8, 0.9))
+    return build
+
+
+def _bottle_upright(rng: np.random.Generator) -> trimesh.Trimesh:
+    radius, body = _u(rng, 0.032, 0.04), _u(rng, 0.15, 0.19)
+    neck_r, neck = _u(rng, 0.012, 0.015), _u(rng, 0.04, 0.06)
+    shoulder = trimesh.creation.cone(radius=radius, height=radius * 1.2, sections=_SEGMENTS)
+    shoulder.apply_translation((0, 0, body))
+    return _union(_cylinder(radius, body), shoulder, _cylinder(neck_r, body + neck))
+
+
+def _bottle(rng: np.random.Generator) -> trimesh.Trimesh:
+    return _lying(_bottle_upright(rng))
+
+
+def _gable_carton(side: tuple[float, float], height: tuple[float, float]):
+    def build(rng: np.random.Generator) -> trimesh.Trimesh:
+        s, h = _u(rng, *side), _u(rng, *height)
+        roof = s * 0.5
+        # The gable: a prism whose ridge runs along y, and the sealed fin along its top.
+        profile = shapely.Polygon([(-s / 2, 0), (s / 2, 0), (0, roof)])
+        gable = trimesh.creation.extrude_polygon(profile, s)
+        gable.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (1, 0, 0)))
+        gable.apply_translation((0, s / 2, h))
+        fin = _box(0.003, s, 0.012, (0, 0, h + roof - 0.004))
+        return _union(_box(s, s, h), gable, fin)
+    return build
+
+
+def _mug(radius: tuple[float, float], height: tuple[float, float]):
+    def build(rng: np.random.Generator) -> trimesh.Trimesh:
+        r, h = _u(rng, *radius), _u(rng, *height)
+        reach = _u(rng, 0.025, 0.035)  # how far the handle stands out of the body
+        handle = trimesh.creation.torus(major_radius=h * 0.3, minor_radius=0.006,
+                                        major_sections=_SEGMENTS, minor_sections=12)
+        handle.apply_scale((reach / (h * 0.3), 1.0, 1.0))
+        handle.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (1, 0, 0)))
+        handle.apply_translation((r, 0, h * 0.5))
+        inside = _cylinder(r - 0.004, h, (0, 0, 0.006))
+        return _minus(_union(_cylinder(r, h), handle), inside)
+    return build
+
+
+def _plate(rng: np.random.Generator) -> trimesh.Trimesh:
+    r, h = _u(rng, 0.11, 0.135), _u(rng, 0.032, 0.04)
+    well = trimesh.creation.cone(radius=r * 0.8, height=h * 4, sections=_SEGMENTS)
+    well.apply_transform(trimesh.transformations.rotation_matrix(math.pi, (1, 0, 0)))
+    well.apply_translation((0, 0, h + h * 4 - 0.012))
+    return _minus(_cylinder(r, h), well)
+
+
+def _flange(rng: np.random.Generator) -> trimesh.Trimesh:
+    r, plate = _u(rng, 0.06, 0.08), _u(rng, 0.012, 0.018)
+    hub_r, hub = r * _u(rng, 0.4, 0.5), _u(rng, 0.03, 0.045)
+    holes = [_cylinder(0.006, plate + 0.01, (0.8 * r * math.cos(a), 0.8 * r * math.sin(a), -0.005))
+             for a in np.arange(6) * math.pi / 3 + math.pi / 6]
+    solid = _union(_cylinder(r, plate), _cylinder(hub_r, plate + hub))
+    return _minus(solid, _cylinder(hub_r * 0.7, plate + hub + 0.01, (0, 0, -0.005)), *holes)
+
+
+def _l_shape(rng: np.random.Generator) -> trimesh.Trimesh:
+    length, width, arm, h = (_u(rng, 0.16, 0.22), _u(rng, 0.11, 0.16), _u(rng, 0.04, 0.06),
+                             _u(rng, 0.04, 0.08))
+    return _union(_box(length, arm, h, (0, -(width - arm) / 2, 0)),
+                  _box(arm, width, h, (-(length - arm) / 2, 0, 0)))
+
+
+def _bracket(rng: np.random.Generator) -> trimesh.Trimesh:
+    length, base, up, t = (_u(rng, 0.10, 0.16), _u(rng, 0.06, 0.10), _u(rng, 0.06, 0.10),
+                           _u(rng, 0.005, 0.008))
+    return _union(_box(length, base, t), _box(length, t, up, (0, (base - t) / 2, 0)))
+
+
+def _channel(rng: np.random.Generator) -> trimesh.Trimesh:
+    length, width, h, t = (_u(rng, 0.18, 0.24), _u(rng, 0.08, 0.11), _u(rng, 0.05, 0.07),
+                           _u(rng, 0.008, 0.012))
+    return _minus(_box(length, width, h), _box(length + 0.01, width - 2 * t, h, (0, 0, t)))
+
+
+def _ring(outer: tuple[float, float], hole: float, height: tuple[float, float]):
+    def build(rng: np.random.Generator) -> trimesh.Trimesh:
+        r, h = _u(rng, *outer), _u(rng, *height)
+        return _minus(_cylinder(r, h), _cylinder(r * hole, h + 0.01, (0, 0, -0.005)))
+    return build
+
+
+def _two_blocks(rng: np.random.Generator) -> trimesh.Trimesh:
+    a, b, gap = _u(rng, 0.07, 0.10), _u(rng, 0.05, 0.08), _u(rng, 0.02, 0.04)
+    h1, h2 = _u(rng, 0.06, 0.10), _u(rng, 0.04, 0.08)
+    x1, x2 = -(gap + b) / 2, (gap + a) / 2
+    bridge = _box(gap + 0.02, 0.015, 0.008, ((x1 + x2) / 2, 0, 0))
+    return _union(_box(a, a, h1, (x1, 0, 0)), _box(b, b, h2, (x2, 0, 0)), bridge)
+
+
+def _dumbbell(rng: np.random.Generator) -> trimesh.Trimesh:
+    r, disc, bar = _u(rng, 0.035, 0.05), _u(rng, 0.025, 0.04), _u(rng, 0.16, 0.24)
+    plates = [_lying(_cylinder(r, disc, (0, 0, x))) for x in (-bar / 2, bar / 2 - disc)]
+    rod = _lying(_cylinder(0.012, bar, (0, 0, -bar / 2)))
+    return _union(*plates, rod)
+
+
+def _blob(parts: tuple[int, int], size: tuple[float, float]):
+    """A soft irregular shape: a union of random ellipsoids, each centred inside an earlier
+    one so that the union is one body."""
+    def build(rng: np.random.Generator) -> trimesh.Trimesh:
+        scale = _u(rng, *size)
+        centres, semis = [np.zeros(3)], [scale * rng.uniform(0.2, 0.35, 3)]
+        for _ in range(int(rng.integers(parts[0], parts[1] + 1)) - 1):
+            j = int(rng.integers(len(centres)))
+            centres.append(centres[j] + rng.uniform(-0.8, 0.8, 3) * semis[j])
+            semis.append(scale * rng.uniform(0.12, 0.28, 3))
+        return _union(*(_ellipsoid(*s, at=tuple(c)) for c, s in zip(centres, semis, strict=True)))
+    return build
+
+
+def _flattened(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    mesh.apply_scale((1.0, 1.0, 0.35))
+    return mesh
+
+
+def _plush(rng: np.random.Generator) -> trimesh.Trimesh:
+    """A seated plush toy: a body, a head, two arms, two legs and two ears."""
+    s = _u(rng, 0.14, 0.22)
+    body = _ellipsoid(0.28 * s, 0.22 * s, 0.32 * s, (0, 0, 0.32 * s))
+    head = _ellipsoid(0.22 * s, 0.2 * s, 0.2 * s, (0.02 * s, 0, 0.78 * s))
+    ears = [_ellipsoid(0.07 * s, 0.03 * s, 0.09 * s, (0, y * 0.14 * s, 0.98 * s)) for y in (-1, 1)]
+    arms = [_ellipsoid(0.09 * s, 0.2 * s, 0.08 * s, (0.05 * s, y * 0.3 * s, 0.42 * s))
+            for y in (-1, 1)]
+    legs = [_ellipsoid(0.22 * s, 0.09 * s, 0.08 * s, (0.25 * s, y * 0.12 * s, 0.08 * s))
+            for y in (-1, 1)]
+    return _union(body, head, *ears, *arms, *legs)
+
+
+#: The family by name, in class order. Every shape has its own seed, so adding one changes
+#: no other.
+FAMILY: dict[str, FamilyShape] = {}
+
+
+def _add(name: str, kind: str, description: str,
+         build: Callable[[np.random.Generator], trimesh.Trimesh]) -> None:
+    FAMILY[name] = FamilyShape(kind, description, build, seed=len(FAMILY) + 1000)
+
+
+_add("box_flat", "box", "a flat carton lying, 22-30 x 15-22 x 3-5 cm",
+     _boxes((0.22, 0.15, 0.03), (0.30, 0.22, 0.05)))
+_add("box_small", "box", "a small cube, 4-5 cm", _boxes((0.04, 0.04, 0.04), (0.05, 0.05, 0.05)))
+_add("box_cube", "box", "a cube-like box, 10-14 cm",
+     _boxes((0.10, 0.10, 0.10), (0.14, 0.14, 0.14)))
+_add("box_tall", "box", "a tall box standing, 6-9 x 5-7 x 22-30 cm",
+     _boxes((0.06, 0.05, 0.22), (0.09, 0.07, 0.30)))
+_add("box_lying", "box", "a long box lying, 22-30 x 6-9 x 5-7 cm", _lying_box)
+_add("box_large", "box", "a large carton, 30-35 x 20-25 x 15-20 cm",
+     _boxes((0.30, 0.20, 0.15), (0.35, 0.25, 0.20)))
+_add("can", "cylinder", "a can standing, 6.6-8.5 cm across, 10-13 cm tall", _can)
+_add("tub", "cylinder", "an open tub standing, 15-20 cm across, 8-12 cm tall", _tub)
+_add("cylinder_lying", "cylinder", "a cylinder lying, 7-10 cm across, 18-26 cm long",
+     _lying_cylinder)
+_add("ball", "sphere", "a ball, 8-12 cm", _sphere)
+_add("fruit", "sphere", "an orange-like ellipsoid, 7-9 cm", _fruit(0.07, 0.09))
+_add("melon", "sphere", "a melon-like ellipsoid, 18-22 cm", _fruit(0.18, 0.22))
+_add("bottle_standing", "bottle", "a bottle standing, 6.4-8 cm across, 19-25 cm tall",
+     _bottle_upright)
+_add("bottle_lying", "bottle", "a bottle lying on its side", _bottle)
+_add("gable_carton", "carton", "a gable-top carton, 7-9.5 cm square, 17-20 cm to the eaves",
+     _gable_carton((0.07, 0.095), (0.17, 0.20)))
+_add("gable_carton_small", "carton", "a small gable-top carton, 5.5-6.5 cm square",
+     _gable_carton((0.055, 0.065), (0.09, 0.12)))
+_add("mug", "mug", "a mug with a handle, 8-9 cm across, 9-10 cm tall",
+     _mug((0.04, 0.045), (0.09, 0.10)))
+_add("mug_wide", "mug", "a wide low cup with a handle, 10-11 cm across",
+     _mug((0.05, 0.055), (0.07, 0.08)))
+_add("plate", "plate", "a deep plate, 22-27 cm across, 3.2-4 cm tall, with its well", _plate)
+_add("flange_small", "plate", "a small flange, 12-16 cm, a hub and six holes", _flange)
+_add("l_shape", "bracket", "an L-shaped part lying flat, 16-22 x 11-16 cm", _l_shape)
+_add("bracket", "bracket", "an angle bracket, a base and an upright plate", _bracket)
+_add("channel", "bracket", "a U channel lying open side up, 18-24 cm", _channel)
+_add("tape_roll", "ring", "a roll of tape, 10-12 cm across, 5 cm tall",
+     _ring((0.05, 0.06), 0.7, (0.045, 0.055)))
+_add("washer", "ring", "a flat ring, 16-20 cm across, 3-4 cm thick",
+     _ring((0.08, 0.10), 0.5, (0.03, 0.04)))
+_add("two_blocks", "two parts", "two blocks with a 2-4 cm gap, a thin bridge at the base",
+     _two_blocks)
+_add("dumbbell", "two parts", "a dumbbell lying, two discs on a bar", _dumbbell)
+_add("blob_small", "blob", "a union of 2-3 random ellipsoids, about 9 cm",
+     _blob((2, 3), (0.12, 0.16)))
+_add("blob", "blob", "a union of 3-4 random ellipsoids, about 19 cm", _blob((3, 4), (0.22, 0.28)))
+_add("blob_large", "blob", "a union of 4-6 random ellipsoids, about 30 cm",
+     _blob((4, 6), (0.34, 0.42)))
+_add("blob_flat", "blob", "a flat union of random ellipsoids, about 20 cm",
+     lambda rng: _flattened(_blob((3, 5), (0.28, 0.34))(rng)))
+_add("plush", "blob", "a seated plush toy, 14-22 cm tall", _plush)
+
+
+def canonical(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """`mesh` turned about z so that its axis-aligned box is its minimum-area box (the longer
+    side along x), its footprint centred on the origin and its lowest point at z = 0."""
+    footprint = shapely.MultiPoint(mesh.vertices[:, :2]).convex_hull
+    rectangle = np.asarray(shapely.minimum_rotated_rectangle(footprint).exterior.coords)[:4]
+    edge = rectangle[1] - rectangle[0]
+    if np.linalg.norm(edge) < np.linalg.norm(rectangle[2] - rectangle[1]):
+        edge = rectangle[2] - rectangle[1]
+    out = mesh.copy()
+    out.apply_transform(trimesh.transformations.rotation_matrix(
+        -math.atan2(edge[1], edge[0]), (0, 0, 1)))
+    (x0, y0, z0), (x1, y1, _) = out.bounds
+    out.apply_translation((-(x0 + x1) / 2, -(y0 + y1) / 2, -z0))
+    return out
+
+
+@functools.cache
+def _built(name: str) -> trimesh.Trimesh:
+    shape = FAMILY[name]
+    return canonical(shape.build(np.random.default_rng(shape.seed)))
+
+
+def family_mesh(name: str) -> trimesh.Trimesh:
+    """A copy of the family's shape `name`, in metres, resting on z = 0 (see the module doc).
+
+    Raises:
+        KeyError: `name` is not in the family.
+    """
+    if name not in FAMILY:
+        raise KeyError(name)
+    return _built(name).copy()
