@@ -89,6 +89,9 @@ class DeviceBehaviour:
         ambient_klux: ambient light, klux (raises the detection limit and the noise).
         reported_sigma_spread: log-normal spread of the reported sigma around the true one.
         startup_statuses: status 6 on the first frame, 10 where a target was just acquired.
+        reflectance: weigh each sample's signal by its surface's reflectance (the scene's
+            `object.reflectance`, `cell.table_reflectance`); else every surface reflects
+            alike, as the sensor model assumes.
     """
 
     target_order: str = "closest"
@@ -100,6 +103,7 @@ class DeviceBehaviour:
     ambient_klux: float = 0.0
     reported_sigma_spread: float = 0.0
     startup_statuses: bool = False
+    reflectance: bool = False
 
     def __post_init__(self) -> None:
         for name, allowed in (("target_order", TARGET_ORDERS), ("merged_depth", MERGED_DEPTHS),
@@ -142,15 +146,17 @@ class DeviceProfile:
     integration_steps: int = 1
 
 
-#: The profiles: the ideal device (the sensor model itself), and ST's defaults and documented
-#: behaviour, where the bleed, the merged depth and the sigma spread are our guesses (no
-#: public figure; docs/sensor-model.md, 8).
+#: The profiles: the ideal device (the sensor model itself), the nearest-surface rule the model
+#: assumed before real frames showed merging, and ST's defaults and documented behaviour,
+#: where the bleed, the merged depth and the sigma spread are our guesses (no public figure;
+#: docs/sensor-model.md, 8).
 PROFILES = {
     "ideal": DeviceProfile(),
+    "nearest": DeviceProfile(DeviceBehaviour()),
     "datasheet": DeviceProfile(
         DeviceBehaviour(target_order="strongest", merge_mm=600.0, merged_depth="signal",
                         sharpener_bleed=0.02, illumination=True, accuracy="datasheet",
-                        reported_sigma_spread=0.5, startup_statuses=True),
+                        reported_sigma_spread=0.5, startup_statuses=True, reflectance=True),
         zone_directions="st", integration_steps=3),
 }
 

@@ -170,7 +170,7 @@ class ToFSensor(LeafSystem):
             behaviour: the device's departures from the model (`core.tof_device`); the
                 default is the ideal device.
             reflectance: reflectance of the surface at world points (n, 3); 0.5 everywhere
-                if not given. Only a non-ideal `behaviour` uses it.
+                if not given. Only a `behaviour` with `reflectance` uses it.
             integration_steps: renders per frame period that a frame integrates, >= 1.
         """
         super().__init__()
@@ -233,12 +233,12 @@ class ToFSensor(LeafSystem):
         return self._Reduce(context, [self._Render(context)], sequence, previous)
 
     def _Render(self, context: Context) -> tuple[np.ndarray, np.ndarray | None]:
-        """One render: the zone depths and, for a non-ideal device, each sample's
-        reflectance."""
+        """One render: the zone depths and, for a device whose surfaces reflect unalike,
+        each sample's reflectance."""
         query = self._query_port.Eval(context)
         depth = render_zone_depths(query, self._camera, self._parent_frame_id, self._X_PS,
                                    self._params)
-        if self._behaviour.ideal or self._reflectance is None:
+        if not self._behaviour.reflectance or self._reflectance is None:
             return depth, None
         X_WS = query.GetPoseInWorld(self._parent_frame_id) @ self._X_PS
         with np.errstate(invalid="ignore"):
