@@ -43,14 +43,16 @@ def test_run_writes_thirteen_frames_that_agree_with_the_scene(heu_run):
     for X in frames["X_WS"]:
         to_center = (center - X[:3, 3]) / np.linalg.norm(center - X[:3, 3])
         np.testing.assert_allclose(X[:3, 2], to_center, atol=1e-6)
-    # Every measured point lies on the table (z = 0) or on the object, within noise and the
-    # zone footprint's spread.
+    # A zone that sees one surface puts its point on it, within noise and the footprint's
+    # spread; one that sees the box's edge and the table reads their merged depth, so its
+    # point lies between the two, never below the table nor above the box.
     points = _world_points(frames)
     assert len(points) > 13 * 48
     lower, upper = place_object(Scenario()).mesh.bounds  # the box lies axis-aligned
     to_object = _distance_to_box_surface(points, lower, upper)
     to_surface = np.minimum(np.abs(points[:, 2]), to_object)
-    assert np.mean(to_surface < 0.02) > 0.95
+    assert np.mean(to_surface < 0.02) > 0.8
+    assert np.all((points[:, 2] > -0.02) & (points[:, 2] < upper[2] + 0.02))
     assert np.mean(to_object < 0.02) > 0.3  # and a good share of them are on the object
 
 

@@ -3,16 +3,29 @@
 import numpy as np
 import pytest
 
-from lrnbv_drake.core.boxes import OrientedBox
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.experiments.episode import run_episode
-from lrnbv_drake.station.parts import box_estimator
+from lrnbv_drake.experiments.refit import load_episode
+from lrnbv_drake.experiments.report import estimate_readings
 from lrnbv_drake.station.scenario import Scenario, preset
 
 
 @pytest.fixture(scope="module")
 def lrnbv(tmp_path_factory):
-    return run_episode(Scenario(seed=0), "lrnbv", tmp_path_factory.mktemp("lrnbv"))
+    """The product's LR-NBV episode on the horizontal box (seed 0), with every estimate
+    track its stop rule was handed."""
+    seen = []
+    update = BoxStop.update
+
+    def recording(self, track):
+        seen.append(track)
+        return update(self, track)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(BoxStop, "update", recording)
+        result = run_episode(Scenario(seed=0), "lrnbv", tmp_path_factory.mktemp("lrnbv"))
+    result.stop_tracks = seen
+    return result
 
 
 def test_lrnbv_on_the_horizontal_box_ends_when_the_box_holds_still_in_few_poses(lrnbv):
@@ -29,8 +42,8 @@ def test_lrnbv_on_the_horizontal_box_ends_when_the_box_holds_still_in_few_poses(
     assert report["estimated_box"]["shape"] == "box"
     assert report["metrics"]["truth_in_interval"] == [True, True, True]
     assert 1 <= report["metrics"]["poses_to_5mm"] <= report["n_poses"]
-    # Poses to accuracy refits each prefix as the report fits the whole: its last row is the
-    # reported box's error.
+    # Poses to accuracy reads the estimate after each pose: its last row is the reported
+    # box's error.
     assert (report["metrics"]["dim_errors_after_each_pose_mm"][-1]
             == pytest.approx(report["metrics"]["dim_errors_mm"], abs=0.01))
     assert report["n_poses"] < Scenario().max_poses
@@ -56,21 +69,26 @@ def test_lrnbv_on_the_horizontal_box_ends_when_the_box_holds_still_in_few_poses(
     assert cycle["total_s"] == pytest.approx(moving + cycle["computation_s"])
 
 
-def test_the_reported_box_is_refitted_from_frames_npz_and_the_cell_box(lrnbv):
-    """report.json's `cell_box` and frames.npz are all the estimate needs: refitted offline
-    from them, the shape estimate gives the reported box again."""
-    report, frames = lrnbv.report, np.load(lrnbv.out_dir / "frames.npz")
-    scenario = Scenario(seed=0)
-    dut = box_estimator(scenario)
-    for i in range(len(frames["X_WS"])):
-        dut.add(ToFFrame(frames["distance_mm"][i], frames["status"][i], frames["sigma_mm"][i],
-                         int(frames["sequence"][i]), int(frames["timestamp_us"][i])),
-                frames["X_WS"][i])
-    start = report["cell_box"]
-    fit = dut.estimate(OrientedBox(np.array(start["center"]), np.array(start["dims"]),
-                                   start["yaw"]))
-    np.testing.assert_allclose(fit.box.dims, report["estimated_box"]["dims"], atol=1e-9)
-    np.testing.assert_allclose(fit.dims_upper, report["estimated_box"]["dims_upper"], atol=1e-9)
+def test_the_stop_reads_the_estimates_the_report_gives_and_refit_gives_them_again(lrnbv):
+    """What ended the episode is what the user gets: the track the stop rule read last holds
+    the reported box and, pose by pose, the estimates the poses-to-accuracy metric scores;
+    estimated again from frames.npz alone (`lrnbv refit`'s path, the map rebuilt from the
+    frames), every pose's box is the same."""
+    report = lrnbv.report
+    last = lrnbv.stop_tracks[-1]
+    assert len(lrnbv.stop_tracks) == report["n_poses"] == len(last.estimates)
+    np.testing.assert_allclose(last.latest.box.dims, report["estimated_box"]["dims"],
+                               atol=1e-9)
+    np.testing.assert_allclose(last.latest.dims_upper, report["estimated_box"]["dims_upper"],
+                               atol=1e-9)
+    true = np.array(report["metrics"]["true_box"]["dims"])
+    per_pose = [1000 * (e.box.dims - true) for e in last.estimates]
+    np.testing.assert_allclose(per_pose, report["metrics"]["dim_errors_after_each_pose_mm"],
+                               atol=0.006)
+    episode = load_episode(lrnbv.out_dir)
+    again = estimate_readings(episode.scenario, episode.readings, episode.cell_boxes)
+    for online, offline in zip(last.estimates, again.estimates, strict=True):
+        np.testing.assert_allclose(offline.box.dims, online.box.dims, atol=1e-9)
 
 
 def test_the_paper_preset_stops_by_line_24_with_the_larger_cell_box(lrnbv, tmp_path):

@@ -4,8 +4,8 @@ hand-worked cases."""
 import numpy as np
 import pytest
 
-from lrnbv_drake.core.box_fit import BoxFit
 from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.estimation.estimator import BoxEstimate
 from lrnbv_drake.core.packing import (
     CatalogueError,
     Container,
@@ -122,26 +122,23 @@ def test_the_shipped_catalogue_holds_every_paper_object_in_a_sensible_box():
         assert decision.container.name == name, (dims, decision.reason)
 
 
-def test_the_occupied_cells_less_a_cell_are_the_floor_of_the_container():
-    """A flange whose plate the fit lost: 0.134 x 0.124 x 0.037 m, its interval up to 0.151 x
-    0.141 x 0.040, while its occupied cells span 0.183 x 0.183 x 0.055. The shipped catalogue
-    then holds the interval but not the 0.200 x 0.200 x 0.050 flange; the cells less a cell
-    (0.173 x 0.173 x 0.045) push the decision up to a box that does."""
+def test_the_margin_is_the_intervals_outer_half_and_a_wider_interval_takes_a_larger_box():
+    """A box of 0.134 x 0.124 x 0.037 m whose interval reaches 0.151 x 0.141 x 0.040: the
+    margin is their difference, 17, 17 and 3 mm; the same box with an interval reaching
+    0.20 x 0.20 x 0.05 (what a misfit widens it to) needs a larger container, and the
+    report says where the margin came from. The cell box, without an interval, takes
+    `packing.fixed_margin`."""
     scenario = Scenario()
-    catalogue = container_catalogue(scenario)
     box = OrientedBox(np.array([0.5, 0.0, 0.0185]), np.array([0.134, 0.124, 0.037]))
-    fit = BoxFit(box, np.array([0.109, 0.11, 0.035]), np.array([0.151, 0.141, 0.04]), 1.0,
-                 100, 1)
-    cells = OrientedBox(np.array([0.5, 0.0, 0.0275]), np.array([0.183, 0.183, 0.055]))
-    truth = np.array([0.2, 0.2, 0.05])
-    alone = packing_decision(scenario, box, fit)
-    assert not packing_metrics(alone, truth, catalogue)["fits"]
-    floored = packing_decision(scenario, box, fit, cells)
-    np.testing.assert_allclose(floored.margin, [0.039, 0.049, 0.008], atol=1e-12)
-    assert packing_metrics(floored, truth, catalogue)["fits"]
-    assert "raised to the occupied cells" in container_entry(
-        scenario, floored, fit, cells)["margin_from"]
-    # Cells within the interval plus a cell change nothing.
-    inside = OrientedBox(cells.center, np.array([0.16, 0.15, 0.05]))
-    assert packing_decision(scenario, box, fit, inside).container == alone.container
-    assert "raised" not in container_entry(scenario, alone, fit, inside)["margin_from"]
+    narrow = BoxEstimate(box, None, interval=lambda: (box.dims - 0.01,
+                                                      np.array([0.151, 0.141, 0.04])))
+    wide = BoxEstimate(box, None, misfit_flag=True,
+                       interval=lambda: (box.dims - 0.01, np.array([0.2, 0.2, 0.05])))
+    decided = packing_decision(scenario, narrow)
+    np.testing.assert_allclose(decided.margin, [0.017, 0.017, 0.003], atol=1e-12)
+    widened = packing_decision(scenario, wide)
+    assert np.prod(widened.container.inner) > np.prod(decided.container.inner)
+    assert "widened by the readings' misfit" in container_entry(widened, wide)["margin_from"]
+    assert "widened" not in container_entry(decided, narrow)["margin_from"]
+    cells = packing_decision(scenario, BoxEstimate.of_cells(box))
+    np.testing.assert_allclose(cells.margin, [scenario.packing.fixed_margin] * 3)

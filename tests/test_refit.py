@@ -40,7 +40,8 @@ def test_the_cell_estimator_gives_the_recorded_cell_box(heu_run, tmp_path):
 
 def test_a_model_that_calls_the_sensor_noisier_widens_the_interval(heu_run, tmp_path):
     """The interval is where the fit's cost rises by a fixed amount in units of the model's
-    sigma: a model that trusts each reading less bounds every dimension more loosely."""
+    sigma: a model that trusts each reading less bounds every dimension more loosely.
+    `estimation:` settings reach the estimate the same way."""
     _, (own,) = _refit(tmp_path, heu_run)
     code, (noisy,) = _refit(tmp_path, heu_run, "--scenario-text",
                             "{sensor: {sigma0_mm: 40.0}}")
@@ -48,6 +49,11 @@ def test_a_model_that_calls_the_sensor_noisier_widens_the_interval(heu_run, tmp_
     width = [np.subtract(r["estimated_box"]["dims_upper"], r["estimated_box"]["dims_lower"])
              for r in (own, noisy)]
     assert np.all(width[1] > width[0])
+    code, (wider,) = _refit(tmp_path, heu_run, "--scenario-text",
+                            "{estimation: {interval_level: 20.0}}")
+    assert code == 0
+    assert np.all(np.subtract(wider["estimated_box"]["dims_upper"],
+                              wider["estimated_box"]["dims_lower"]) > width[0])
 
 
 def test_frames_that_do_not_match_the_report_are_refused_and_nothing_is_written(
@@ -70,10 +76,12 @@ def test_a_missing_file_is_named(tmp_path, capsys):
 
 
 def test_an_episode_that_found_no_object_gives_no_box(heu_run, tmp_path, capsys):
+    """The episode's map is rebuilt from its frames with its own extraction: looked for
+    where nothing stands, it finds no object, so no box either."""
     folder = tmp_path / "none"
     shutil.copytree(heu_run, folder)
     report = json.loads((folder / "report.json").read_text())
-    report["cell_box"] = None
+    report["scenario"] = report["scenario"].replace("center: [0.5, 0.0]", "center: [0.0, 0.5]")
     (folder / "report.json").write_text(json.dumps(report))
     code, (result,) = _refit(tmp_path, folder)
     assert code == 1 and result["estimated_box"] is None and result["container"] is None
@@ -82,9 +90,8 @@ def test_an_episode_that_found_no_object_gives_no_box(heu_run, tmp_path, capsys)
 
 @pytest.mark.parametrize("n", [2, 7, 12])
 def test_the_first_poses_give_what_the_episode_had_after_them(heu_run, tmp_path, n):
-    """The map rebuilt offline from the first n frames finds the cell box the episode's own
-    map and clustering had after its n-th pose: the box is the one the episode's
-    poses-to-accuracy metric recorded for that prefix, from the online extraction."""
+    """The first n frames, their map rebuilt offline, give the estimate the episode had
+    after its n-th pose: the one its poses-to-accuracy metric recorded."""
     code, (result,) = _refit(tmp_path, heu_run, "--poses", n)
     report = json.loads((heu_run / "report.json").read_text())
     assert report["n_poses"] > n

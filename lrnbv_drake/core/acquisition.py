@@ -9,7 +9,9 @@ it, let the map take it in, plan again.
               the stop, then record it as an `Acquisition`
     WAIT_MAP  wait 1.5 ticks: the map inserts the frame on the next tick, the planner reads
               the updated map on the one after; then PLAN
-    DONE      the policy is done, the stop rule says the box is known (`stop`), `max_poses`
+    DONE      the policy is done, the stop rule says the reported box is known (`stop`, reading
+              the estimates `AcquisitionInputs.estimates` gives once the extraction after
+              the last acquisition is logged), `max_poses`
               frames were recorded, or no proposed viewpoint could be reached
               `max_failed_proposals` times in a row
 
@@ -27,6 +29,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.motion import MotionPlanning, Trajectory
 from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation, ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop
@@ -169,6 +172,7 @@ class AcquisitionInputs(Protocol):
     def q(self) -> np.ndarray: ...
     def X_WS(self) -> np.ndarray: ...
     def observation(self, n_acquisitions: int) -> Observation: ...
+    def estimates(self) -> EstimateTrack: ...
 
 
 class AcquisitionSequencer:
@@ -266,11 +270,7 @@ class AcquisitionSequencer:
             return
         started = time.perf_counter()
         if self._stop is not None and observation.n_acquisitions > 0:
-            extraction = observation.extraction
-            reason = self._stop.update(
-                [(a.frame, a.X_WS) for a in s.log.acquisitions],
-                extraction.oriented_box if extraction is not None and extraction.found
-                else None)
+            reason = self._stop.update(inputs.estimates())
             if reason is not None:
                 s.log.policy_seconds.append(time.perf_counter() - started)
                 self._finish(s, reason)

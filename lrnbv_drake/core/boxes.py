@@ -232,6 +232,12 @@ class OrientedBox:
         union = self.dims[0] * self.dims[1] + other.dims[0] * other.dims[1] - inter
         return inter / union if union > 0 else 0.0
 
+    def footprint_share(self, other: OrientedBox) -> float:
+        """The share of this box's footprint that lies inside `other`'s: whether it lies
+        within a larger box that describes the same place (1 inside, 0 apart)."""
+        area = self.dims[0] * self.dims[1]
+        return self._footprint_overlap(other) / area if area > 0 else 0.0
+
     def iou(self, other: OrientedBox) -> float:
         """Exact 3-D intersection over union: since both boxes are only yawed, the intersection is
         a prism, footprint overlap area times the overlap of the z ranges. 0 when both are flat."""

@@ -1,17 +1,18 @@
 """The numba kernels a process would otherwise wait seconds for the first time, compiled into
-the on-disk cache (`lrnbv_drake/numba_cache.py`) at once: the shape estimate's (the report,
-also the one after a fault on the real cell), the kinematics' and look_at's (the first
+the on-disk cache (`lrnbv_drake/numba_cache.py`) at once: the box estimator's (every pose,
+and the report after a fault on the real cell), the kinematics' and look_at's (the first
 planning iteration). `make` runs `python -m lrnbv_drake.core.kernels` after installing.
 """
 
 from __future__ import annotations
 
-from lrnbv_drake.core import height_map_fit, kinematics, poses
+from lrnbv_drake.core import kinematics, poses
+from lrnbv_drake.core.estimation import track
 
 
 def compile_kernels() -> None:
     """Runs each module's `compile_kernels`."""
-    for module in (height_map_fit, kinematics, poses):
+    for module in (track, kinematics, poses):
         module.compile_kernels()
 
 

@@ -32,6 +32,7 @@ from pydrake.systems.framework import Context, Diagram, DiagramBuilder, EventSta
 
 from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
 from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
 from lrnbv_drake.core.robot_safety import RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorError
@@ -49,6 +50,7 @@ from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import (
     PLANNERS,
     check_scenario_files,
+    episode_estimator,
     extraction_params,
     make_policy,
     make_self_filter,
@@ -59,13 +61,14 @@ from lrnbv_drake.station.parts import (
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.station.scenario_checks import check_placement
 from lrnbv_drake.systems.acquisition_loop import AcquisitionLoop
+from lrnbv_drake.systems.box_estimation import BoxEstimation
 from lrnbv_drake.systems.object_clustering import ObjectClustering
 from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
 from lrnbv_drake.systems.planner_visualizer import PlannerVisualizer
 from lrnbv_drake.systems.tof_visualizer import ToFVisualizer
 
 __all__ = ["PLANNERS", "EpisodeDiagram", "EpisodeResult", "EpisodeRun", "build_episode",
-           "make_meshcat", "run_episode", "run_loop", "write_outputs"]
+           "final_estimates", "make_meshcat", "run_episode", "run_loop", "write_outputs"]
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +96,7 @@ class EpisodeDiagram:
     cell: Cell
     loop: AcquisitionLoop
     map_system: OccupancyMapSystem
+    estimation: BoxEstimation
     policy: ViewpointPolicy
 
 
@@ -128,6 +132,11 @@ def _around_cell(cell: Cell, scenario: Scenario, planner: str, meshcat: Meshcat 
         frame_period=scenario.sensor.period, settle_frames=scenario.sensor.settle_frames,
         max_poses=scenario.max_poses, history=history, stop=make_stop(planner, scenario),
         self_filter=make_self_filter(scenario, motion)))
+    estimation = builder.AddNamedSystem("estimation",
+                                        BoxEstimation(episode_estimator(scenario)))
+    builder.Connect(loop.GetOutputPort("log"), estimation.GetInputPort("log"))
+    builder.Connect(estimation.GetOutputPort("box_estimate"),
+                    loop.GetInputPort("box_estimate"))
     occupancy = builder.AddNamedSystem("map", map_system(scenario, period))
     clustering = builder.AddNamedSystem("clustering",
                                         ObjectClustering(extraction_params(scenario)))
@@ -157,7 +166,7 @@ def _around_cell(cell: Cell, scenario: Scenario, planner: str, meshcat: Meshcat 
                         view.GetInputPort("occupied_points"))
     diagram = builder.Build()
     diagram.set_name("episode")
-    return EpisodeDiagram(scenario, diagram, cell, loop, occupancy, policy)
+    return EpisodeDiagram(scenario, diagram, cell, loop, occupancy, estimation, policy)
 
 
 @dc.dataclass
@@ -179,6 +188,17 @@ class EpisodeRun:
 def episode_log(parts: EpisodeDiagram, root_context: Context) -> EpisodeLog:
     """The acquisition loop's log in a context of the episode diagram."""
     return parts.loop.GetOutputPort("log").Eval(parts.loop.GetMyContextFromRoot(root_context))
+
+
+def final_estimates(parts: EpisodeDiagram, root_context: Context) -> tuple[EstimateTrack,
+                                                                           float]:
+    """The episode's estimate track with every acquisition in (`BoxEstimation.final_track`),
+    and the seconds of the estimates that only this folded in (the loop timed the others
+    in its planning)."""
+    context = parts.estimation.GetMyContextFromRoot(root_context)
+    before = len(parts.estimation.GetOutputPort("box_estimate").Eval(context).estimates)
+    track = parts.estimation.final_track(context)
+    return track, float(sum(track.seconds[before:]))
 
 
 def run_loop(parts: EpisodeDiagram, *, realtime_rate: float = 0.0,
@@ -301,16 +321,18 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
                    interrupt_hint=f"what was captured is in {out_dir}")
     wall = time.perf_counter() - started
     try:
-        report = episode_report(planner, scenario, run.log, termination=run.termination,
+        track, report_seconds = final_estimates(parts, run.context)
+        report = episode_report(planner, scenario, run.log, track, termination=run.termination,
                                 wall_seconds=wall, sim_seconds=run.sim_seconds,
-                                map_update_seconds=parts.map_system.insert_seconds)
+                                map_update_seconds=parts.map_system.insert_seconds,
+                                report_seconds=report_seconds)
         placed = parts.cell.models.placed_object
         estimated = (None if report["estimated_box"] is None else
                      OrientedBox(np.array(report["estimated_box"]["center"]),
                                  np.array(report["estimated_box"]["dims"]),
                                  report["estimated_box"]["yaw"]))
         report["metrics"] = {**episode_metrics(scenario, placed, run.log, estimated).to_dict(),
-                             **accuracy_metrics(scenario, placed, run.log, report)}
+                             **accuracy_metrics(scenario, placed, track, report)}
     except BaseException:
         save_frames(out_dir / "frames.npz", run.log.acquisitions)  # the captured data first
         raise

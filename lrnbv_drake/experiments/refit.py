@@ -3,18 +3,18 @@ or estimator, without moving the arm (`lrnbv refit`).
 
 Why: the box is fitted to the raw zone readings through the sensor model
 (docs/box-estimation.md), so a calibration made after a session (`lrnbv sensor
-characterize`) or another estimator changes what the same readings say. An episode's folder
-(`lrnbv run`, a campaign's `runs/*`, `lrnbv hardware`) keeps every frame with its sensor pose
-(frames.npz) and the final cell box and the scenario it ran (report.json): that is all the
-estimate needs, so nothing is simulated again. Only an episode cut short (`first_poses`)
-rebuilds its map, from its own frames, for the cell box it had then.
+characterize`), other estimator settings or another estimator change what the same readings
+say. An episode's folder (`lrnbv run`, a campaign's `runs/*`, `lrnbv hardware`) keeps every
+frame with its sensor pose (frames.npz) and the scenario it ran (report.json): that is all
+the estimate needs. The map is rebuilt from the frames, pose by pose, for the cell box the
+episode had after each (the map is a function of its frames), so under the episode's own
+scenario the estimate is the episode's, pose by pose; nothing is simulated again.
 """
 
 from __future__ import annotations
 
 import dataclasses as dc
 import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -28,13 +28,13 @@ from lrnbv_drake.experiments.report import (
     against_truth,
     box_entry,
     container_entry,
-    fit_readings,
+    estimate_readings,
     found_box,
     packing_decision,
     rounded,
 )
 from lrnbv_drake.station.parts import extraction_params, map_system
-from lrnbv_drake.station.scenario import Scenario, load_scenario
+from lrnbv_drake.station.scenario import Scenario, recorded_scenario
 
 
 class RefitError(ValueError):
@@ -50,8 +50,9 @@ class RecordedEpisode:
     scenario: Scenario
     # Every frame with its sensor pose X_WS (4, 4), in the order they were taken.
     readings: list[tuple[ToFFrame, np.ndarray]]
-    # The object's final cell box, where the fits start; None when no object was found.
-    cells: OrientedBox | None
+    # The object's cell box after each reading (None where none was found), from the map
+    # rebuilt from the readings with the episode's mapping and extraction settings.
+    cell_boxes: list[OrientedBox | None]
     # The box the episode reported (report.json's `estimated_box`), or None.
     reported: dict[str, Any] | None
     # The true box of a simulated episode; None on the real cell.
@@ -63,6 +64,20 @@ def _box(entry: dict[str, Any] | None) -> OrientedBox | None:
         return None
     return OrientedBox(np.array(entry["center"], float), np.array(entry["dims"], float),
                        float(entry["yaw"]))
+
+
+def cell_boxes(scenario: Scenario, readings: list[tuple[ToFFrame, np.ndarray]]
+               ) -> list[OrientedBox | None]:
+    """The object's cell box after each reading, in the map built from them in order."""
+    occupancy = map_system(scenario, period=None)
+    context = occupancy.CreateDefaultContext()
+    params = extraction_params(scenario)
+    boxes = []
+    for reading in readings:
+        occupancy.insert_recorded(context, [reading])
+        boxes.append(found_box(extract_object(occupancy.occupancy_map.occupied_centers(),
+                                              params)))
+    return boxes
 
 
 def load_episode(folder: str | Path) -> RecordedEpisode:
@@ -81,7 +96,7 @@ def load_episode(folder: str | Path) -> RecordedEpisode:
                              f"`lrnbv hardware`)")
     try:
         report = json.loads(report_path.read_text())
-        scenario = load_scenario(data=report["scenario"])
+        scenario = recorded_scenario(report["scenario"])
         arrays = load_recording(frames_path)
         readings = list(zip(frames_from_arrays(arrays), arrays["X_WS"], strict=True))
     except (OSError, ValueError, KeyError, IndexError) as e:
@@ -90,17 +105,14 @@ def load_episode(folder: str | Path) -> RecordedEpisode:
         raise RefitError(f"{frames_path}: {len(readings)} frames, but {report_path} has "
                          f"{report.get('n_poses')} poses; expected the two files of one episode")
     true = report.get("metrics", {}).get("true_box")
-    return RecordedEpisode(folder, scenario, readings, _box(report.get("cell_box")),
+    return RecordedEpisode(folder, scenario, readings, cell_boxes(scenario, readings),
                            report.get("estimated_box"), _box(true))
 
 
 def first_poses(episode: RecordedEpisode, n: int) -> RecordedEpisode:
-    """`episode` as if it had stopped after `n` poses: its first `n` readings, and the cell box
-    the extraction finds in the map rebuilt from them (the episode's own mapping and
-    extraction settings: the same map and cells the episode had after its n-th pose).
-
-    Why: whether fewer poses would have done, e.g. how a looser stop rule would have fared on
-    readings taken on the real cell.
+    """`episode` as if it had stopped after `n` poses: its first `n` readings and the cell
+    boxes it had after them. Why: whether fewer poses would have done, e.g. how a looser stop
+    rule would have fared on readings taken on the real cell.
 
     Raises:
         RefitError: `n` is not between 1 and the episode's number of poses.
@@ -110,31 +122,24 @@ def first_poses(episode: RecordedEpisode, n: int) -> RecordedEpisode:
                          f"{len(episode.readings)}; expected 1 to {len(episode.readings)}")
     if n == len(episode.readings):
         return episode
-    readings = episode.readings[:n]
-    occupancy = map_system(episode.scenario, period=None)
-    occupancy.insert_recorded(occupancy.CreateDefaultContext(), readings)
-    extraction = extract_object(occupancy.occupancy_map.occupied_centers(),
-                                extraction_params(episode.scenario))
-    return dc.replace(episode, readings=readings, cells=found_box(extraction), reported=None)
+    return dc.replace(episode, readings=episode.readings[:n],
+                      cell_boxes=episode.cell_boxes[:n], reported=None)
 
 
 def refit(episode: RecordedEpisode, scenario: Scenario) -> dict[str, Any]:
     """The box, its interval and container from `episode`'s readings under `scenario` (the
-    episode's own, or it with a calibrated `sensor:` section or another estimator), with the
-    errors against the truth for a simulated episode. The fields are report.json's."""
-    started = time.perf_counter()
-    box, fit = fit_readings(scenario, episode.readings, episode.cells)
-    seconds = time.perf_counter() - started
-    entry = box_entry(scenario, box, fit)
+    episode's own, or it with a calibrated `sensor:` section, other `estimation:` settings
+    or another estimator), with the errors against the truth for a simulated episode. The
+    fields are report.json's."""
+    track = estimate_readings(scenario, episode.readings, episode.cell_boxes)
+    entry = box_entry(scenario, track.latest)
     out: dict[str, Any] = {
         "folder": str(episode.folder),
         "estimated_box": entry,
-        "container": container_entry(scenario, packing_decision(scenario, box, fit,
-                                                                episode.cells),
-                                     fit, episode.cells),
+        "container": container_entry(packing_decision(scenario, track.latest), track.latest),
         "reported_box": episode.reported,
         "n_poses": len(episode.readings),
-        "box_estimate_s": seconds,
+        "box_estimate_s": list(track.seconds),
     }
     if episode.true is not None and entry is not None:
         out.update(against_truth(entry, episode.true))

@@ -4,7 +4,7 @@ object, the real cell its hardware state."""
 
 from __future__ import annotations
 
-import time
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -13,12 +13,13 @@ from pydrake.common.yaml import yaml_dump_typed
 
 from lrnbv_drake.core import metrics
 from lrnbv_drake.core.acquisition import EpisodeLog, cycle_time
-from lrnbv_drake.core.box_fit import BoxFit
 from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.estimation.estimator import BoxEstimate
+from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.objects import PlacedObject, sample_surface
 from lrnbv_drake.core.packing import PackingDecision, choose_container, packing_metrics
 from lrnbv_drake.core.sensor import ToFFrame
-from lrnbv_drake.station.parts import box_estimator, container_catalogue
+from lrnbv_drake.station.parts import container_catalogue, episode_estimator
 from lrnbv_drake.station.scenario import Scenario
 
 #: Spacing of the surface samples the coverage metric counts, metres (threshold / 2).
@@ -59,56 +60,35 @@ def found_box(extraction) -> OrientedBox | None:
     return extraction.oriented_box if extraction is not None and extraction.found else None
 
 
-def estimate_box(scenario: Scenario, episode_log: EpisodeLog, interval: bool = True
-                 ) -> tuple[OrientedBox | None, BoxFit | None]:
-    """The episode's box as `extraction.estimator` says (`fit_readings`), started from the
-    final cell box."""
-    return fit_readings(scenario, [(a.frame, a.X_WS) for a in episode_log.acquisitions],
-                        found_box(_final_extraction(episode_log)), interval)
+def estimate_readings(scenario: Scenario, readings: Sequence[tuple[ToFFrame, np.ndarray]],
+                      cell_boxes: Sequence[OrientedBox | None]) -> EstimateTrack:
+    """The estimate track `extraction.estimator` gives for every (frame, X_WS) of
+    `readings`, the cell box after reading i being `cell_boxes[i]`: what the episode's
+    `BoxEstimation` system computed, again."""
+    return episode_estimator(scenario).update(readings, cell_boxes, final=True)
 
 
-def fit_readings(scenario: Scenario, readings: Sequence[tuple[ToFFrame, np.ndarray]],
-                 cells: OrientedBox | None, interval: bool = True
-                 ) -> tuple[OrientedBox | None, BoxFit | None]:
-    """The box as `extraction.estimator` says: the sensor-model fit to every (frame, X_WS) of
-    `readings` (with its interval unless not `interval`), started from the cell box `cells`;
-    or `cells` itself. No fit without `cells` (no object was found)."""
-    estimator = box_estimator(scenario)
-    if cells is None or estimator is None:
-        return cells, None
-    for frame, X_WS in readings:
-        estimator.add(frame, X_WS)
-    fit = estimator.estimate(cells, interval=interval)
-    return (fit.box if fit is not None else cells), fit
+def errors_after_each_pose(track: EstimateTrack, true: OrientedBox) -> np.ndarray:
+    """(n_poses, 3) estimate - truth of the dimensions after each pose: the estimate the
+    episode had then (the last row is the reported box's error); NaN before an object is
+    found."""
+    return np.array([np.full(3, np.nan) if e is None else e.box.dims - true.dims
+                     for e in track.estimates]).reshape(-1, 3)
 
 
-def errors_after_each_pose(scenario: Scenario, episode_log: EpisodeLog,
-                           true: OrientedBox) -> np.ndarray:
-    """(n_poses, 3) estimate - truth of the dimensions after each pose: `estimate_box` on each
-    prefix of the episode, the box it would have reported had it stopped there (so the last
-    row is the reported box's error); NaN before an object is found."""
-    errors = np.full((len(episode_log.acquisitions), 3), np.nan)
-    for i in range(len(errors)):
-        prefix = EpisodeLog(acquisitions=episode_log.acquisitions[:i + 1],
-                            extractions=episode_log.extractions[:i + 1])
-        box, _ = estimate_box(scenario, prefix, interval=False)
-        if box is not None:
-            errors[i] = box.dims - true.dims
-    return errors
-
-
-def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
-                   termination: str, wall_seconds: float, sim_seconds: float,
-                   map_update_seconds: list[float]) -> dict[str, Any]:
-    """The fields every report has: settings, the estimated box, every pose, timings."""
+def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog,
+                   track: EstimateTrack, *, termination: str, wall_seconds: float,
+                   sim_seconds: float, map_update_seconds: list[float],
+                   report_seconds: float = 0.0) -> dict[str, Any]:
+    """The fields every report has: settings, the estimated box (the last of `track`),
+    every pose, timings. `report_seconds`: the estimation the loop did not already time
+    (the estimates folded in after it ended)."""
     final = _final_extraction(episode_log)
-    started = time.perf_counter()
-    box, fit = estimate_box(scenario, episode_log)
-    estimate_seconds = time.perf_counter() - started
+    estimate = track.latest
     cells = found_box(final)
-    decision = packing_decision(scenario, box, fit, cells)
+    decision = packing_decision(scenario, estimate)
     cycle = cycle_time(episode_log, other_computation=(
-        sum(map_update_seconds) + sum(episode_log.clustering_seconds) + estimate_seconds))
+        sum(map_update_seconds) + sum(episode_log.clustering_seconds) + report_seconds))
     return {
         "planner": planner,
         "object": scenario.object.name,
@@ -117,8 +97,8 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
         "seed": scenario.seed,
         "termination": termination,
         "n_poses": len(episode_log.acquisitions),
-        "estimated_box": box_entry(scenario, box, fit),
-        "container": container_entry(scenario, decision, fit, cells),
+        "estimated_box": box_entry(scenario, estimate),
+        "container": container_entry(decision, estimate),
         "cycle_time": {"motion_s": cycle.motion, "settle_s": cycle.settle,
                        "computation_s": cycle.computation, "total_s": cycle.total},
         "extraction": final.reason if final is not None else "no extraction",
@@ -146,48 +126,36 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog, *,
                                      if "cache_reevaluation_s" in a.info],
             "map_update_s": list(map_update_seconds),
             "clustering_s": episode_log.clustering_seconds,
-            "box_estimate_s": estimate_seconds,
+            "box_estimate_s": list(track.seconds),
         },
         "scenario": yaml_dump_typed(scenario),
     }
 
 
-def _upper(scenario: Scenario, fit: BoxFit, cells: OrientedBox | None) -> np.ndarray:
-    """The fit's upper bounds, raised to how far the object's occupied map cells say it
-    reaches at least: their box less a cell (`mapping.resolution`) for the quantisation."""
-    if cells is None:
-        return fit.dims_upper
-    return np.maximum(fit.dims_upper, cells.dims - scenario.mapping.resolution)
-
-
-def packing_decision(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None,
-                     cells: OrientedBox | None = None) -> PackingDecision | None:
-    """The container for the estimated box: its margin is the interval's outer half (the
-    sensor-model fit), raised where the object's occupied cells `cells` reach further less a
-    cell, or `packing.fixed_margin` (the cell box); None without a box.
-
-    The floor: a fit can lose a part the map holds. A flange whose plate the fit lost (0.134 x
-    0.124 m for 0.200 x 0.200, its interval up to 0.151 x 0.141) went into a container too
-    small while its cells spanned 0.183 x 0.183; with the floor every episode of the campaigns
-    of 2026-12-01 fits and no container changed size elsewhere (docs/results.md)."""
-    if box is None:
+def packing_decision(scenario: Scenario, estimate: BoxEstimate | None
+                     ) -> PackingDecision | None:
+    """The container for the estimated box: its margin is the interval's outer half (widened
+    where the readings misfit the model), or `packing.fixed_margin` without an interval (the
+    cell box); None without a box."""
+    if estimate is None:
         return None
-    margin = (np.maximum(_upper(scenario, fit, cells) - box.dims, 0.0) if fit is not None
-              else np.full(3, scenario.packing.fixed_margin))
+    box = estimate.box
+    margin = (np.full(3, scenario.packing.fixed_margin) if estimate.dims_upper is None
+              else np.maximum(estimate.dims_upper - box.dims, 0.0))
     return choose_container(box.dims, margin, scenario.packing.clearance,
                             container_catalogue(scenario))
 
 
-def container_entry(scenario: Scenario, decision: PackingDecision | None, fit: BoxFit | None,
-                    cells: OrientedBox | None) -> dict[str, Any] | None:
+def container_entry(decision: PackingDecision | None, estimate: BoxEstimate | None
+                    ) -> dict[str, Any] | None:
     """report.json's `container`: the decision and where its margin came from."""
     if decision is None:
         return None
     margin_from = "packing.fixed_margin"
-    if fit is not None:
+    if estimate is not None and estimate.dims_upper is not None:
         margin_from = "the estimate's 90 % profile interval"
-        if np.any(_upper(scenario, fit, cells) > fit.dims_upper):
-            margin_from += ", raised to the occupied cells' extent less a cell"
+        if estimate.misfit_flag:
+            margin_from += ", widened by the readings' misfit"
     chosen = decision.container
     return {
         "name": None if chosen is None else chosen.name,
@@ -210,17 +178,36 @@ def _cell_box_entry(box: OrientedBox | None) -> dict[str, Any] | None:
     return {"center": box.center.tolist(), "dims": box.dims.tolist(), "yaw": float(box.yaw)}
 
 
-def box_entry(scenario: Scenario, box: OrientedBox | None, fit: BoxFit | None
-              ) -> dict[str, Any] | None:
-    """report.json's `estimated_box`: the box, and the fit's interval where there is one."""
-    if box is None:
+#: What report.json says when the readings misfit the model, and the command that fixes it.
+MISFIT_NOTE = ("the readings misfit the sensor model beyond what its noise allows: the "
+               "sensor model is not this device's, or the object has parts the estimate "
+               "does not draw; the interval and the container's margin are widened by the "
+               "misfit. Calibrate the model with `lrnbv sensor characterize` "
+               "(docs/sensor-calibration.md), then `lrnbv refit` this folder")
+
+
+def box_entry(scenario: Scenario, estimate: BoxEstimate | None) -> dict[str, Any] | None:
+    """report.json's `estimated_box`: the box, and the fit's interval, shape and misfit
+    where there is one."""
+    if estimate is None:
         return None
+    box = estimate.box
     entry = {"estimator": scenario.extraction.estimator, "center": box.center.tolist(),
              "dims": box.dims.tolist(), "yaw": float(box.yaw),
              "yaw_deg": float(np.degrees(box.yaw))}
-    if fit is not None:
-        entry.update(dims_lower=fit.dims_lower.tolist(), dims_upper=fit.dims_upper.tolist(),
-                     zones=fit.n_zones, shape=fit.shape)
+    if estimate.shape is not None:
+        entry.update(
+            dims_lower=estimate.dims_lower.tolist(), dims_upper=estimate.dims_upper.tolist(),
+            zones=estimate.n_zones, shape=estimate.shape.name(),
+            parts=[{"solid": solid, "rounded": rounded, "center": x[:2].tolist(),
+                    "yaw": float(x[2]), "dims": x[3:6].tolist(), "rounding": x[6:].tolist()}
+                   for x, solid, rounded in zip(estimate.shape.parts, estimate.shape.solid,
+                                                estimate.shape.rounded, strict=True)],
+            misfit=estimate.misfit,
+            table_misfit=None if math.isnan(estimate.table_misfit) else estimate.table_misfit,
+            misfit_flag=estimate.misfit_flag)
+        if estimate.misfit_flag:
+            entry["misfit_note"] = MISFIT_NOTE
     return entry
 
 
@@ -236,14 +223,15 @@ def episode_metrics(scenario: Scenario, placed: PlacedObject, episode_log: Episo
                                    samples, cells, scenario.mapping.resolution)
 
 
-def accuracy_metrics(scenario: Scenario, placed: PlacedObject, episode_log: EpisodeLog,
+def accuracy_metrics(scenario: Scenario, placed: PlacedObject, track: EstimateTrack,
                      report: dict[str, Any]) -> dict[str, Any]:
     """The box in millimetres against the truth: per-dimension errors, whether the truth lies
-    in the reported interval, poses-to-5 mm and -10 mm (`metrics.poses_to_accuracy`), and
-    the container against the one the true box gets (`packing.packing_metrics`)."""
+    in the reported interval, poses-to-5 mm and -10 mm (`metrics.poses_to_accuracy`) from
+    the estimate after each pose, and the container against the one the true box gets
+    (`packing.packing_metrics`)."""
     report_box = report["estimated_box"]
     true = metrics.true_box(placed.mesh.vertices, scenario.cell.table_height)
-    errors = errors_after_each_pose(scenario, episode_log, true)
+    errors = errors_after_each_pose(track, true)
     out: dict[str, Any] = {
         "true_box": {"center": true.center.tolist(), "dims": true.dims.tolist(),
                      "yaw": float(true.yaw)},

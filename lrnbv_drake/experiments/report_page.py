@@ -145,7 +145,22 @@ def _dimensions_table(report: dict[str, Any]) -> str:
         rows.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
     header = ("<tr><th>dimension</th><th>estimate (mm)</th><th>interval (mm)</th>"
               "<th>true (mm)</th><th>error (mm)</th><th>truth in interval</th></tr>")
-    return f"<table>{header}{''.join(rows)}</table>"
+    return f"<table>{header}{''.join(rows)}</table>{_fit_text(box)}"
+
+
+def _fit_text(box: dict[str, Any]) -> str:
+    """What was fitted and how well the model explains the readings, with the warning and the
+    command that fixes it where the readings misfit the model."""
+    if "shape" not in box:
+        return "<p>The box around the object's occupied map cells (no interval).</p>"
+    table = box.get("table_misfit")
+    text = (f"<p>Fitted as: {html.escape(box['shape'])}, to {box['zones']} zone readings; "
+            f"misfit {box['misfit']:.2f}" + ("" if table is None else
+                                              f", the bare table's {table:.2f}")
+            + " (1 where the model explains the readings to its noise).</p>")
+    if box.get("misfit_flag"):
+        text += f'<p class="warning"><b>Warning</b>: {html.escape(box["misfit_note"])}.</p>'
+    return text
 
 
 def _container_text(report: dict[str, Any]) -> str:
@@ -186,6 +201,7 @@ def report_page(report: dict[str, Any], acquisitions: Sequence[Acquisition],
         f"<h2>Replay</h2>{replay_text}",
     ]
     style = ("body{font-family:sans-serif;max-width:1100px;margin:auto}"
+             ".warning{background:#fde2c4;padding:6px}"
              "table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:3px 8px}"
              "img{max-width:100%}")
     return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}"

@@ -57,6 +57,7 @@ from lrnbv_drake.experiments.episode import (
     EpisodeDiagram,
     EpisodeRun,
     build_episode,
+    final_estimates,
     run_loop,
     write_outputs,
 )
@@ -236,9 +237,12 @@ def _record_finish(out_dir: Path, termination: str) -> None:
 
 def _report(planner: str, scenario: Scenario, parts: EpisodeDiagram, run: EpisodeRun,
             result: SessionResult, dry_run: bool, sensor_stats: SerialStats) -> dict[str, Any]:
-    report = episode_report(planner, scenario, run.log, termination=result.termination,
-                            wall_seconds=run.wall_seconds, sim_seconds=run.sim_seconds,
-                            map_update_seconds=parts.map_system.insert_seconds)
+    track, report_seconds = final_estimates(parts, run.context)
+    report = episode_report(planner, scenario, run.log, track,
+                            termination=result.termination, wall_seconds=run.wall_seconds,
+                            sim_seconds=run.sim_seconds,
+                            map_update_seconds=parts.map_system.insert_seconds,
+                            report_seconds=report_seconds)
     report.update({
         "dry_run": dry_run,
         "robot_ip": scenario.robot.robot_ip,

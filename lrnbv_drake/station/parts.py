@@ -11,16 +11,16 @@ import numpy as np
 
 from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.acquisition import SelfFilter
-from lrnbv_drake.core.box_fit import BoxEstimator, BoxFitParams
 from lrnbv_drake.core.boxes import AlignedBox
-from lrnbv_drake.core.height_map_fit import ShapeEstimator
+from lrnbv_drake.core.estimation.estimator import ShapeEstimator
+from lrnbv_drake.core.estimation.track import EpisodeEstimator
 from lrnbv_drake.core.objects import PlacedObject
 from lrnbv_drake.core.packing import CatalogueError, Container, load_catalogue
 from lrnbv_drake.core.perception import ExtractionParams
 from lrnbv_drake.core.planning.heu import HeuPolicy
 from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
-from lrnbv_drake.core.planning.stop import BoxStop, BoxStopParams
+from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.core.robot_safety import SafetyLimits
 from lrnbv_drake.core.self_filter import drop_robot_zones
 from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams, ToFFrame, ZoneGeometry
@@ -126,24 +126,18 @@ def scene_reflectance(scenario: Scenario) -> Callable[[np.ndarray], np.ndarray]:
     return reflectance
 
 
-def box_estimator(scenario: Scenario) -> BoxEstimator | None:
-    """The estimator `extraction.estimator` names: the sensor-model box fit, that fit or the
-    height map's box (`shape`), or None for the cell box."""
+def episode_estimator(scenario: Scenario) -> EpisodeEstimator:
+    """The estimator `extraction.estimator` names, pose by pose: the shape fitted to the
+    readings through the sensor model (`estimation:`), or the cell boxes themselves."""
     e = scenario.extraction
     if e.estimator == "cells":
-        return None
-    if e.estimator not in ("model", "shape"):
-        raise ScenarioError(f"field 'extraction.estimator': expected 'shape', 'model' or "
-                            f"'cells', got {e.estimator!r}")
-    kind = ShapeEstimator if e.estimator == "shape" else BoxEstimator
-    return kind(sensor_params(scenario), scenario.cell.table_height, box_fit_params(scenario))
-
-
-def box_fit_params(scenario: Scenario) -> BoxFitParams:
-    """The box fit's settings: the defaults, the table's footprint and the model's rule for
-    a zone's reading."""
-    return BoxFitParams(table_extent=tuple(scenario.cell.table_extent),
-                        behaviour=sensor_behaviour(scenario))
+        return EpisodeEstimator(None)
+    if e.estimator != "shape":
+        raise ScenarioError(f"field 'extraction.estimator': expected 'shape' or 'cells', got "
+                            f"{e.estimator!r}")
+    return EpisodeEstimator(ShapeEstimator(
+        sensor_params(scenario), sensor_behaviour(scenario), scenario.cell.table_height,
+        tuple(scenario.cell.table_extent), scenario.estimation))
 
 
 def extraction_params(scenario: Scenario) -> ExtractionParams:
@@ -212,12 +206,7 @@ def make_stop(planner: str, scenario: Scenario) -> BoxStop | None:
                             f"{stop.rule!r}")
     if stop.rule == "paper" or planner == "heu":
         return None
-    return BoxStop(BoxEstimator(sensor_params(scenario), scenario.cell.table_height,
-                                dc.replace(box_fit_params(scenario),
-                                           interval_cost=stop.interval_cost)),
-                   BoxStopParams(tolerance=stop.tolerance, stable_poses=stop.stable_poses,
-                                 min_poses=stop.min_poses,
-                                 interval_width=stop.interval_width))
+    return BoxStop(stop)
 
 
 def container_catalogue(scenario: Scenario) -> list[Container]:

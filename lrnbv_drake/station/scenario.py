@@ -17,13 +17,14 @@ import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.visualization import VisualizationConfig
 
+from lrnbv_drake.core.estimation.params import EstimationParams
 from lrnbv_drake.core.kinematics import HOME
 from lrnbv_drake.core.planning.config import HeuParams, PlannerParams
 from lrnbv_drake.station.hardware_config import HardwareConfig
 from lrnbv_drake.station.resources import package_url
 from lrnbv_drake.station.scenario_checks import ScenarioError, check_ranges, parse_yaml
 
-__all__ = ["Scenario", "ScenarioError", "load_scenario", "override"]
+__all__ = ["Scenario", "ScenarioError", "load_scenario", "override", "recorded_scenario"]
 
 
 @dc.dataclass
@@ -63,7 +64,8 @@ class CellConfig:
     directives: str = package_url("cell/cell.dmd.yaml")
     # Height of the table top in the world frame, metres.
     table_height: float = 0.0
-    # Reflectance of the table top at 940 nm; only a non-ideal simulated device reads it.
+    # Reflectance of the table top at 940 nm; only a simulated device with
+    # `device.reflectance` (the datasheet profile) reads it.
     table_reflectance: float = 0.3
     # The table top's footprint in the world, [x_min, y_min, x_max, y_max], metres (the
     # shipped table: 1.2 x 0.8 m centred at (0.30, 0)): the box fit's scene model sees the
@@ -86,7 +88,8 @@ class ObjectConfig:
     x: float = 0.50
     y: float = 0.0
     yaw_deg: float = 0.0
-    # Reflectance at 940 nm (0.54: the datasheet's grey); only a non-ideal device reads it.
+    # Reflectance at 940 nm (0.54: the datasheet's grey); only a simulated device with
+    # `device.reflectance` (the datasheet profile) reads it.
     reflectance: float = 0.54
 
 
@@ -116,9 +119,11 @@ class SensorConfig:
     # Which target a zone reports, "closest" or "strongest", and surfaces closer than
     # merge_mm in depth reported as one at a "signal"-weighted, "nearest" or "farthest" depth
     # (0: no merging; with "closest", the nearest surface holding min_share, with "strongest"
-    # the surface of the most signal). The box estimator predicts readings with these.
-    target_order: str = "closest"
-    merge_mm: float = 0.0
+    # the surface of the most signal). The default is ST's (strongest, 600 mm), under which a
+    # zone that sees an object's edge and the table reads their signal-weighted depth, as
+    # real frames do (docs/sensor-model.md). The estimator predicts readings with these.
+    target_order: str = "strongest"
+    merge_mm: float = 600.0
     merged_depth: str = "signal"
     # Frame period, seconds (15 Hz in 8x8 mode).
     period: float = 0.0666666666666666
@@ -143,8 +148,9 @@ class DeviceConfig:
     # Noise: sigma = max(sigma0_mm, noise_k * distance).
     sigma0_mm: float | None = None
     noise_k: float | None = None
-    # The device as a whole: "ideal" (the model's rule above: the nearest surface holding
-    # min_share, Gaussian noise, status 5) or "datasheet" (ST's documented behaviour,
+    # The device as a whole: "ideal" (the model's rule above, Gaussian noise, status 5),
+    # "nearest" (the nearest surface holding min_share, not merged: the rule the model
+    # assumed before real frames showed merging) or "datasheet" (ST's documented behaviour,
     # docs/sensor-model.md section 8). The fields below override one knob of the profile.
     profile: str = "ideal"
     # Which target a zone reports: "closest" or "strongest" (ST's default).
@@ -166,6 +172,9 @@ class DeviceConfig:
     reported_sigma_spread: float | None = None
     # Status 6 on the first frame, 10 where a zone has just acquired a target.
     startup_statuses: bool | None = None
+    # Weigh each surface's signal by its reflectance (object.reflectance,
+    # cell.table_reflectance); the model assumes every surface reflects alike.
+    reflectance: bool | None = None
     # Zone centre directions: "uniform", "st" (the shape of ST's table) or a CSV file of
     # resolution^2 rows "x_deg, y_deg", row-major.
     zone_directions: str | None = None
@@ -227,11 +236,9 @@ class ExtractionConfig:
     # Boxes enclose the occupied cells (True) or their centres (False). Edge zones already put
     # points up to half a zone beyond an edge; enclosing the cells adds a cell more.
     enclose_cells: bool = False
-    # The reported box: "shape" (the product's default), the box fitted to the raw zone
-    # readings through the sensor model or, where the readings need more than a box, the
-    # bounding box of a height map fitted the same way (core/height_map_fit.py); "model", that
-    # box fit alone (core/box_fit.py); or "cells", around the occupied cells of the cluster
-    # (the paper's).
+    # The reported box: "shape" (the product's default), the box of the shape fitted to the
+    # raw zone readings through the sensor model (core/estimation/, the `estimation:`
+    # section), or "cells", the box around the occupied cells of the cluster (the paper's).
     estimator: str = "shape"
 
 
@@ -266,6 +273,8 @@ class Scenario:
     packing: PackingConfig = dc.field(default_factory=PackingConfig)
     mapping: MappingConfig = dc.field(default_factory=MappingConfig)
     extraction: ExtractionConfig = dc.field(default_factory=ExtractionConfig)
+    # The box estimator's settings (docs/box-estimation.md); `lrnbv refit` can vary them.
+    estimation: EstimationParams = dc.field(default_factory=EstimationParams)
     planner: PlannerParams = dc.field(default_factory=PlannerParams)
     # The HEU baseline's ellipse of viewpoints (the paper's 13 views by default).
     heu: HeuParams = dc.field(default_factory=HeuParams)
@@ -372,6 +381,42 @@ def preset(name: str | None) -> Scenario:
     if name not in PRESETS:
         raise ScenarioError(f"unknown preset {name!r}: expected one of {sorted(PRESETS)}")
     return load_scenario(data=PRESETS[name])
+
+
+#: Fields an earlier version wrote that this one no longer has, with what replaced them: a
+#: recorded episode's scenario is read without them (`recorded_scenario`).
+RETIRED: dict[tuple[str, ...], str] = {
+    ("planner", "stop", "interval_cost"): "the stop rule reads the reported interval",
+}
+#: Values an earlier version wrote that this one reads as another.
+RENAMED: dict[tuple[tuple[str, ...], str], str] = {
+    (("extraction", "estimator"), "model"): "shape",
+}
+
+
+def recorded_scenario(text: str) -> "Scenario":
+    """The scenario a report.json or session.json recorded, written by this version or an
+    earlier one: `RETIRED` fields dropped, `RENAMED` values read as their successors.
+
+    Raises:
+        ScenarioError: naming the bad field.
+    """
+    data = parse_yaml(text, "recorded scenario") or {}
+    for path in RETIRED:
+        *parents, leaf = path
+        node = data
+        for key in parents:
+            node = node.get(key, {}) if isinstance(node, dict) else {}
+        if isinstance(node, dict):
+            node.pop(leaf, None)
+    for (path, old), new in RENAMED.items():
+        *parents, leaf = path
+        node = data
+        for key in parents:
+            node = node.get(key, {}) if isinstance(node, dict) else {}
+        if isinstance(node, dict) and node.get(leaf) == old:
+            node[leaf] = new
+    return load_scenario(data=yaml.safe_dump(data))
 
 
 def override(scenario: Scenario, overrides: dict[str, typing.Any]) -> Scenario:

@@ -21,6 +21,7 @@ from lrnbv_drake.core.acquisition import (
     Mode,
     SelfFilter,
 )
+from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.motion import MotionPlanning
 from lrnbv_drake.core.planning.policy import Observation, ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop
@@ -43,6 +44,10 @@ class _PortInputs:
     def X_WS(self) -> np.ndarray:
         return self._system.GetInputPort("X_WS").Eval(self._context).GetAsMatrix4()
 
+    def estimates(self) -> EstimateTrack:
+        port = self._system.GetInputPort("box_estimate")
+        return port.Eval(self._context) if port.HasValue(self._context) else EstimateTrack()
+
     def observation(self, n_acquisitions: int) -> Observation:
         def optional(name: str):
             port = self._system.GetInputPort(name)
@@ -63,6 +68,7 @@ class AcquisitionLoop(LeafSystem):
     - X_WS
     - map (optional)
     - object (optional)
+    - box_estimate (optional)
     output_ports:
     - position_command
     - acquired_frame
@@ -72,10 +78,12 @@ class AcquisitionLoop(LeafSystem):
     @endsystem
 
     `position_measured` (6), `tof_frame` (ToFFrame), `X_WS` (RigidTransform), `map`
-    (OccupancyMap), `object` (ExtractionResult). `position_command` (6) plays the current
-    trajectory; `acquired_frame` / `acquired_pose` show the last acquisition; `log` is the
-    `EpisodeLog`; `plan` the accepted proposal's drawable data. A periodic unrestricted update
-    steps the sequencer and returns ReachedTermination when the episode is done.
+    (OccupancyMap), `object` (ExtractionResult), `box_estimate` (EstimateTrack, what the
+    stop rule reads; the `BoxEstimation` system computes it from `log`). `position_command`
+    (6) plays the current trajectory; `acquired_frame` / `acquired_pose` show the last
+    acquisition; `log` is the `EpisodeLog`; `plan` the accepted proposal's drawable data. A
+    periodic unrestricted update steps the sequencer and returns ReachedTermination when the
+    episode is done.
 
     `history`, when it holds acquisitions, is an episode to carry on (`initial_state`): the
     policy and the map are the caller's to restore (`ViewpointPolicy.restore`,
@@ -97,6 +105,7 @@ class AcquisitionLoop(LeafSystem):
         self.DeclareAbstractInputPort("X_WS", AbstractValue.Make(RigidTransform()))
         self.DeclareAbstractInputPort("map", AbstractValue.Make(None))
         self.DeclareAbstractInputPort("object", AbstractValue.Make(None))
+        self.DeclareAbstractInputPort("box_estimate", AbstractValue.Make(EstimateTrack()))
 
         initial = self._sequencer.initial_state(q_initial, history)
         self._state_index = self.DeclareAbstractState(AbstractValue.Make(initial))

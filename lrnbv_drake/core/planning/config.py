@@ -55,20 +55,15 @@ class TreeParams:
 class StopParams:
     """When an LR-NBV or NBV episode ends, besides the pose cap (core/planning/stop.py)."""
 
-    # "paper": Algorithm 1, line 24 alone. "box" (the product's default: it measured 6-9
-    # poses where line 24 took 13-21, docs/results.md): also when every dimension of the box
-    # estimate has moved less than `tolerance` (m) over the last `stable_poses` poses, once
-    # `min_poses` were taken and the readings bound every dimension to within
-    # `interval_width` (m; a side no view saw from outside keeps the episode going): a side
-    # is bounded where moving it raises the box fit's cost by `interval_cost` (5: at the
-    # interval's 2.71 a side one or two readings hold was bounded one pose and open the next;
-    # 5 and 10 measured against it in docs/results.md).
+    # "paper": Algorithm 1, line 24 alone. "box" (the product's default): also once every
+    # dimension of the reported estimate has moved less than `tolerance` (m) over the last
+    # `stable_poses` poses, `min_poses` were taken and its interval is narrower than
+    # `interval_width` (m) on every dimension (core/planning/stop.py).
     rule: str = "box"
     tolerance: float = 0.005
     stable_poses: int = 2
     min_poses: int = 4
     interval_width: float = 0.02
-    interval_cost: float = 5.0
 
 
 @dc.dataclass

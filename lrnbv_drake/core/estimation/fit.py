@@ -1,0 +1,587 @@
+"""Fitting a shape to the readings: one robust objective, a coordinate search, the shape's
+structure chosen by an information criterion, and each dimension's profile interval.
+
+The objective is the soft-L1 sum of every fitted zone's residual in the model's sigma
+(`forward._loss`). Sub-ray sampling makes it piecewise constant in the parts' sides, so it is
+minimised by a coordinate grid search: each side, the top, the yaw and the rounding of each
+part in turn, every candidate of a grid in one kernel call that re-casts only the sub-rays
+crossing what the coordinate moves (the others' depths cannot change).
+
+Which shape (a box, a rounded part, more parts, holes) is chosen by the Bayesian information
+criterion with the noise scale unknown, n ln(C / n) + k ln n for a cost C over n zones and k
+parameters: a box is a solid part with its rounding fixed at zero, and a richer shape is kept
+only where it explains the readings by more than its parameters would explain noise, measured
+against the misfit the readings leave (on a device the model does not explain, that misfit is
+large and a part must explain that much more).
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+from collections.abc import Callable
+
+import numpy as np
+import scipy.cluster.hierarchy
+
+from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.estimation import forward
+from lrnbv_drake.core.estimation.forward import NO_CLIP, ReadingRule, ZoneRays
+
+#: The roundings a solid part is tried with: an upright cylinder, an ellipsoid, and a
+#: cylinder lying along either side (`forward` module doc); a hole is a box or the first.
+ROUNDINGS = ((1.0, 1.0, 0.0), (1.0, 1.0, 1.0), (0.0, 1.0, 1.0), (1.0, 0.0, 1.0))
+#: Smallest side of a part, metres.
+MIN_SIDE = 0.002
+#: A hole's height: it runs from the table up through every solid.
+HOLE_HEIGHT = 2.0
+#: A zone the shape does not explain: its residual beyond this many sigmas (a chance of
+#: about 0.3 % for the model's noise); and how many such zones a structure move needs.
+OUTLIER = 3.0
+MIN_OUTLIERS = 3
+#: Residual, sigmas, of the zones a part or a hole is proposed around: lower than an
+#: outlier's, as a thin part (a plate on the table) moves each zone by a sigma or two; the
+#: information criterion then decides whether the part stays.
+PROPOSAL = 2.0
+#: Coordinates of a part: its four sides (moved outward), its top, its yaw, its rounding.
+SIDES, TOP, YAW = (0, 1, 2, 3), 4, 5
+
+
+@dc.dataclass(frozen=True)
+class Shape:
+    """Solid parts minus holes (`forward.PART_SIZE` numbers each) and which parts have their
+    rounding free (the others are boxes)."""
+
+    parts: np.ndarray
+    rounded: tuple[bool, ...]
+    solid: tuple[bool, ...]
+
+    @property
+    def n_params(self) -> int:
+        return sum((6 if s else 5) + (3 if s else 2) * r
+                       for r, s in zip(self.rounded, self.solid, strict=True))
+
+    def coordinates(self, k: int) -> tuple[int, ...]:
+        """The coordinates part k is searched in (a hole has no top and no vertical
+        rounding)."""
+        if self.solid[k]:
+            return tuple(range(9 if self.rounded[k] else 6))
+        return (0, 1, 2, 3, YAW, 6, 7) if self.rounded[k] else (0, 1, 2, 3, YAW)
+
+    def with_part(self, k: int, x: np.ndarray, rounded: bool | None = None) -> Shape:
+        parts = self.parts.copy()
+        parts[k] = x
+        flags = list(self.rounded)
+        if rounded is not None:
+            flags[k] = rounded
+        return dc.replace(self, parts=parts, rounded=tuple(flags))
+
+    def added(self, x: np.ndarray, solid: bool) -> Shape:
+        return dc.replace(self, parts=np.vstack([self.parts, x]),
+                          rounded=(*self.rounded, False), solid=(*self.solid, solid))
+
+    def without(self, k: int) -> Shape:
+        keep = [i for i in range(len(self.rounded)) if i != k]
+        return dc.replace(self, parts=self.parts[keep],
+                          rounded=tuple(self.rounded[i] for i in keep),
+                          solid=tuple(self.solid[i] for i in keep))
+
+    def name(self) -> str:
+        """"box", "rounded" or "N parts" (holes counted apart)."""
+        solids, holes = sum(self.solid), len(self.solid) - sum(self.solid)
+        text = (f"{solids} parts" if solids > 1 else
+                "rounded" if any(r and np.any(x[6:] > 0) for r, x, s in
+                                 zip(self.rounded, self.parts, self.solid, strict=True) if s)
+                else "box")
+        return text + (f", {holes} hole{'s' * (holes > 1)}" if holes else "")
+
+    def footprint(self) -> np.ndarray:
+        """(n, 2) points of the solids' footprint whose convex hull is the footprint's."""
+        t = np.linspace(0, 2 * np.pi, 96, endpoint=False)
+        s = np.linspace(-1, 1, 33)
+        points = []
+        for x, solid in zip(self.parts, self.solid, strict=True):
+            if not solid:
+                continue
+            a, b = x[3] / 2, x[4] / 2
+            local = np.concatenate([
+                np.stack([a * np.cos(t) / math.sqrt(max(x[6], 1e-9)),
+                          b * np.sin(t) / math.sqrt(max(x[7], 1e-9))], axis=1),
+                np.stack([np.r_[a * s, a * s, np.full(33, a), np.full(33, -a)],
+                          np.r_[np.full(33, b), np.full(33, -b), b * s, b * s]], axis=1)])
+            inside = ((np.abs(local[:, 0]) <= a + 1e-9) & (np.abs(local[:, 1]) <= b + 1e-9)
+                      & (x[6] * (local[:, 0] / a) ** 2 + x[7] * (local[:, 1] / b) ** 2
+                         <= 1 + 1e-9))
+            c, sn = math.cos(x[2]), math.sin(x[2])
+            points.append(local[inside] @ np.array([[c, sn], [-sn, c]]) + x[:2])
+        return np.concatenate(points)
+
+    def box(self, table: float) -> OrientedBox:
+        """The solids' bounding box: a single part's own box, else the minimum-area box of
+        their footprints."""
+        solids = self.parts[np.array(self.solid)]
+        height = float(solids[:, 5].max())
+        if len(solids) == 1:
+            x = solids[0]
+            return OrientedBox(np.array([x[0], x[1], table + height / 2]),
+                               np.array([x[3], x[4], height]), float(x[2]))
+        points = self.footprint()
+        return OrientedBox.from_points(np.c_[points, np.full(len(points), table + height)],
+                                       floor_z=table)
+
+
+def box_shape(box: OrientedBox, table: float) -> Shape:
+    """One solid box part with the footprint and top of `box` (at least MIN_SIDE each way)."""
+    return Shape(part_of_box(box, table)[None], (False,), (True,))
+
+
+def part_of_box(box: OrientedBox, table: float) -> np.ndarray:
+    """A box part with the footprint and top of `box` (at least MIN_SIDE each way)."""
+    dims = np.maximum(box.dims, MIN_SIDE)
+    top = max(box.center[2] + box.dims[2] / 2 - table, MIN_SIDE)
+    return np.array([box.center[0], box.center[1], box.yaw, dims[0], dims[1], top, 0, 0, 0])
+
+
+def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
+    """Part x with a side moved outward by `value` (0-3), its top raised (4), its yaw turned
+    (5), or its rounding's r (6-8) set to `value`."""
+    y = x.copy()
+    if coordinate in SIDES:
+        axis = 3 + coordinate // 2
+        value = max(value, MIN_SIDE - y[axis])
+        sign = 1.0 if coordinate % 2 else -1.0
+        c, s = math.cos(y[2]), math.sin(y[2])
+        u = (c, s) if axis == 3 else (-s, c)
+        y[axis] += value
+        y[0] += sign * value / 2 * u[0]
+        y[1] += sign * value / 2 * u[1]
+    elif coordinate == TOP:
+        y[5] = max(y[5] + value, MIN_SIDE)
+    elif coordinate == YAW:
+        y[2] += value
+    else:
+        y[coordinate] = min(max(value, 0.0), 1.0)
+    return y
+
+
+def bic(cost: float, n: int, k: int) -> float:
+    """The information criterion with the noise scale unknown (the module doc)."""
+    return n * math.log(max(cost, 1e-12) / n) + k * math.log(n)
+
+
+@dc.dataclass(frozen=True)
+class Fit:
+    """A shape and what it predicts: each sub-ray's depth, each zone's reading and loss."""
+
+    shape: Shape
+    depths: np.ndarray
+    predicted: np.ndarray
+    costs: np.ndarray
+
+    @property
+    def cost(self) -> float:
+        return float(self.costs.sum())
+
+
+class Problem:
+    """The zones one estimate fits, the table's depths along their sub-rays and the rule
+    that turns depths into readings; every cost of the search."""
+
+    def __init__(self, rays: ZoneRays, table: float, extent: np.ndarray, rule: ReadingRule,
+                 loss_scale: float, no_return: float, step: float,
+                 region: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        self.rays, self.table, self.rule = rays, table, rule
+        self.loss = (loss_scale, no_return)
+        self.step = step
+        # (lower, upper) world corners the solid parts must stay within: the zones were
+        # chosen there, so beyond it nothing in the fit would bound a part.
+        self.region = region
+        self.base = forward.table_depths(rays.origins, rays.directions, table, extent)
+
+    def inside(self, xs: np.ndarray) -> np.ndarray:
+        """(len(xs),) whether each part's box lies within the region."""
+        if self.region is None:
+            return np.ones(len(xs), bool)
+        c, s = np.abs(np.cos(xs[:, 2])), np.abs(np.sin(xs[:, 2]))
+        reach = np.stack([c * xs[:, 3] + s * xs[:, 4], s * xs[:, 3] + c * xs[:, 4]], 1) / 2
+        lo, hi = self.region
+        return (np.all(xs[:, :2] - reach >= lo[:2], axis=1)
+                & np.all(xs[:, :2] + reach <= hi[:2], axis=1)
+                & (self.table + xs[:, 5] <= hi[2]))
+
+    def __len__(self) -> int:
+        return len(self.rays)
+
+    def score(self, fit: Fit) -> float:
+        return bic(fit.cost, len(self), fit.shape.n_params)
+
+    def _losses(self, depths, zones=slice(None)):
+        r = self.rays
+        return forward.zone_losses(depths, r.measured[zones], r.sigma[zones],
+                                   *self.rule.args(), *self.loss)
+
+    def evaluate(self, shape: Shape, clip: np.ndarray = NO_CLIP, zones: np.ndarray | None = None
+                 ) -> Fit:
+        """`shape`'s predictions and losses (of the zones `zones` only, if given)."""
+        r, zones = self.rays, slice(None) if zones is None else zones
+        depths = forward.shape_depths(r.origins[zones], r.directions[zones], shape.parts,
+                                      np.array(shape.solid), self.base[zones], self.table, clip)
+        return Fit(shape, depths, *self._losses(depths, zones))
+
+    def _updated(self, fit: Fit, shape: Shape, zones: np.ndarray) -> Fit:
+        """`fit` with `shape`, its zones `zones` evaluated again (the others unchanged)."""
+        part = self.evaluate(shape, zones=zones)
+        depths, predicted, costs = fit.depths.copy(), fit.predicted.copy(), fit.costs.copy()
+        depths[zones], predicted[zones], costs[zones] = part.depths, part.predicted, part.costs
+        return Fit(shape, depths, predicted, costs)
+
+    def near(self, x: np.ndarray, grow: float) -> np.ndarray:
+        """Indices of the zones with a sub-ray through part x's box grown by `grow` on every
+        side (the only zones its searches can change)."""
+        region = x.copy()
+        region[3:6] += 2 * grow
+        r = self.rays
+        return np.flatnonzero(forward.crossing(r.origins, r.directions, region,
+                                               self.table - grow).any(axis=1))
+
+    def _moving(self, shape: Shape, k: int, coordinate: int, lo: float, hi: float,
+                near: np.ndarray) -> np.ndarray:
+        """(len(near), m) the sub-rays of zones `near` a grid of part k's coordinate from
+        `lo` to `hi` can change: those crossing the slab a box's side or top sweeps, or all
+        of a rounded part's (its rounding scales with its sides), or of the disc its yaw
+        turns in."""
+        x = shape.parts[k]
+        origins, directions = self.rays.origins[near], self.rays.directions[near]
+        if coordinate in SIDES and not shape.rounded[k]:
+            axis = 3 + coordinate // 2
+            region = moved(moved(x, coordinate, hi), coordinate ^ 1, -(x[axis] + lo) + 1e-4)
+            return forward.crossing(origins, directions, region, self.table)
+        if coordinate == TOP and not shape.rounded[k]:
+            region = x.copy()
+            region[5] = hi - lo + 1e-4
+            return forward.crossing(origins, directions, region, self.table + x[5] + lo)
+        region = x.copy()
+        if coordinate == YAW:
+            region[3] = region[4] = math.hypot(x[3], x[4])
+        elif coordinate <= TOP:
+            region = moved(x, coordinate, max(hi, 0.0))
+        return forward.crossing(origins, directions, region, self.table)
+
+    def trials(self, fit: Fit, k: int, coordinate: int, xs: np.ndarray, lo: float, hi: float,
+               near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(zones, losses): the zones (of `near`) a grid `xs` of part k's coordinate can
+        change and their losses (len(xs), len(zones)) at each candidate."""
+        moving = self._moving(fit.shape, k, coordinate, lo, hi, near)
+        rows = np.flatnonzero(moving.any(axis=1))
+        zones = near[rows]
+        starts = np.r_[0, np.cumsum(moving[rows].sum(axis=1))]
+        subrays = np.nonzero(moving[rows])[1]
+        r, s = self.rays, fit.shape
+        return zones, forward.grid_costs(
+            r.origins, r.directions, r.measured, r.sigma, zones, starts, subrays, s.parts,
+            np.array(s.solid), k, xs, fit.depths, self.base, self.table, *self.rule.args(),
+            *self.loss)
+
+    def refine(self, fit: Fit, span: float, only: int | None = None, max_sweeps: int = 4
+               ) -> Fit:
+        """A coordinate search of every part (or part `only`): each coordinate on a grid of
+        steps about a quarter of `span` (the sides and top; the yaw and rounding in
+        proportion), moved while its best lies at the grid's edge, then of the finest
+        steps."""
+        fine = (self.step,) * 5 + (math.radians(0.2),) + (0.02,) * 3
+        coarse = (span / 4,) * 5 + (math.radians(1.5) * span / 0.03,) + (min(span * 5, 0.25),) * 3
+        for _ in range(max_sweeps):
+            before = fit.cost
+            for k in range(len(fit.shape.rounded)) if only is None else (only,):
+                near = self.near(fit.shape.parts[k], 2 * span + 0.01)
+                for coordinate in fit.shape.coordinates(k):
+                    steps = (coarse[coordinate], fine[coordinate])
+                    for step in steps if steps[0] > 3 * steps[1] else steps[1:]:
+                        fit = self._line(fit, k, coordinate, step, 3 * span, near)
+            if fit.cost >= before - 1e-9:
+                break
+        return fit
+
+    def _line(self, fit: Fit, k: int, coordinate: int, step: float, reach: float,
+              near: np.ndarray) -> Fit:
+        """Part k's coordinate on a grid of +-3 `step`s, re-centred on its best while that
+        lies at the edge, at most `reach` (sides and top) from where it started; a solid's
+        candidates beyond the region left out."""
+        travelled = 0.0
+        while True:
+            x = fit.shape.parts[k]
+            centre = x[coordinate] if coordinate > YAW else 0.0
+            grid = centre + step * np.arange(-3, 4)
+            xs = np.array([moved(x, coordinate, g) for g in grid])
+            if fit.shape.solid[k]:
+                keep = self.inside(xs)
+                if not keep.any():
+                    return fit
+                grid, xs = grid[keep], xs[keep]
+            zones, trials = self.trials(fit, k, coordinate, xs, grid[0] - centre,
+                                        grid[-1] - centre, near)
+            if len(zones) == 0:
+                return fit
+            totals = trials.sum(axis=1)
+            best = int(np.argmin(totals))
+            if totals[best] >= fit.costs[zones].sum() - 1e-9:
+                return fit
+            fit = self._updated(fit, fit.shape.with_part(k, xs[best]), zones)
+            travelled += abs(grid[best] - centre)
+            if best not in (0, len(grid) - 1) or coordinate > YAW or travelled >= reach:
+                return fit
+
+
+def _volume_scale(r: np.ndarray) -> np.ndarray:
+    """How much a box's sides grow for the rounding `r` (one of `ROUNDINGS`) of the same
+    volume: by the rounded axes' share of the cut (an upright cylinder's footprint is
+    pi / 4 of its box's, an ellipsoid's volume pi / 6)."""
+    share = {2: math.pi / 4, 3: math.pi / 6}[int(r.sum())]
+    return np.where(r > 0, share ** (-1 / r.sum()), 1.0)
+
+
+def _classed(problem: Problem, fit: Fit, k: int, span: float) -> Fit:
+    """Part k as the best of a box and the roundings (`ROUNDINGS`; a hole: a box or an
+    upright cylinder), each searched within `span` from the part of the same volume."""
+    best = None
+    shape = fit.shape
+    for r in (None, *(ROUNDINGS if shape.solid[k] else ROUNDINGS[:1])):
+        x = np.r_[shape.parts[k][:6], (0, 0, 0) if r is None else r]
+        if r is not None and not shape.rounded[k]:
+            x[3:6] *= _volume_scale(np.array(r))
+        trial = problem.evaluate(shape.with_part(k, x, rounded=r is not None))
+        trial = problem.refine(trial, span, only=k, max_sweeps=2)
+        if best is None or problem.score(trial) < problem.score(best):
+            best = trial
+    return best
+
+
+def _grouped(points: np.ndarray) -> np.ndarray:
+    """The largest group of `points` by single linkage at 3 cm."""
+    if len(points) < 2:
+        return points
+    groups = scipy.cluster.hierarchy.fcluster(
+        scipy.cluster.hierarchy.linkage(points, "single"), 0.03, criterion="distance")
+    return points[groups == np.bincount(groups).argmax()]
+
+
+def _proposed(problem: Problem, fit: Fit, solid: bool) -> tuple[np.ndarray | None, int]:
+    """A box part around the largest group of the points where the readings put a surface
+    nearer than the shape does (a solid part it lacks: residuals below -`PROPOSAL` sigmas,
+    above the table) or farther, inside its footprint (a hole: above `PROPOSAL`), a
+    centimetre beyond them for a solid, and how many zones ask for it; None where there is
+    none."""
+    r, shape = problem.rays, fit.shape
+    residual = (r.measured - np.nan_to_num(fit.predicted, nan=np.inf)) / r.sigma
+    zones = np.flatnonzero(residual < -PROPOSAL if solid else residual > PROPOSAL)
+    points = r.origins[zones] + r.measured[zones, None] * r.directions[zones].mean(axis=1)
+    yaw = shape.parts[0, 2]
+    rotation = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
+    if solid:
+        points = points[points[:, 2] > problem.table + 0.005]
+    else:
+        box = shape.box(problem.table)
+        local = (points[:, :2] - box.center[:2]) @ np.array(
+            [[math.cos(box.yaw), -math.sin(box.yaw)], [math.sin(box.yaw), math.cos(box.yaw)]])
+        points = points[np.all(np.abs(local) < box.dims[:2] / 2, axis=1)]
+    points = _grouped(points)
+    if len(points) < MIN_OUTLIERS:
+        return None, 0
+    local = points[:, :2] @ rotation
+    grow = 0.01 if solid else 0.0
+    lo, hi = local.min(axis=0) - grow, local.max(axis=0) + grow
+    height = max(points[:, 2].max() - problem.table + 0.005, 0.01) if solid else HOLE_HEIGHT
+    return np.array([*(rotation @ ((lo + hi) / 2)), yaw, *np.maximum(hi - lo, 0.01), height,
+                     0, 0, 0]), len(points)
+
+
+def _halves(shape: Shape, k: int, axis: int) -> Shape:
+    """Solid part k cut across its side `axis` (0: length, 1: width) into two boxes."""
+    x = np.r_[shape.parts[k][:6], 0, 0, 0]
+    size = x[3 + axis]
+    return (shape.without(k).added(moved(x, 2 * axis + 1, -size / 2), True)
+            .added(moved(x, 2 * axis, -size / 2), True))
+
+
+@dc.dataclass(frozen=True)
+class Move:
+    """A change of the shape's structure the readings may ask for: `kind` "class" (part k
+    re-classed or cut in two), "solid" or "hole" (a part added), with the outlier zones
+    that ask for it."""
+
+    kind: str
+    k: int
+    evidence: int
+    # The part a "solid" or "hole" move adds.
+    part: np.ndarray | None = dc.field(default=None, compare=False)
+
+
+def _outliers(problem: Problem, fit: Fit) -> np.ndarray:
+    r = problem.rays
+    return np.abs((r.measured - np.nan_to_num(fit.predicted, nan=np.inf)) / r.sigma) > OUTLIER
+
+
+def moves(problem: Problem, fit: Fit, max_parts: int) -> list[Move]:
+    """The structure moves the readings ask for, most asked first: a part or a hole added
+    where at least `MIN_OUTLIERS` zones ask for it (`_proposed`), then each part re-classed,
+    asked for by the zones that see it (its class, chosen on fewer readings, is revisited as
+    they grow) and first where most of them are outliers (residuals beyond `OUTLIER`)."""
+    outlier = _outliers(problem, fit)
+    shape, found = fit.shape, []
+    if len(shape.solid) < max_parts:
+        for kind in ("solid", "hole"):
+            part, asking = _proposed(problem, fit, kind == "solid")
+            if part is not None:
+                found.append(Move(kind, -1, asking, part))
+    found.sort(key=lambda m: -m.evidence)
+    near = [problem.near(x, 0.01) for x in shape.parts]
+    return ([m for m in found if m.evidence >= MIN_OUTLIERS]
+            + sorted((Move("class", k, len(z)) for k, z in enumerate(near)),
+                     key=lambda m: -int(outlier[near[m.k]].sum())))
+
+
+def _tried(problem: Problem, fit: Fit, move: Move, max_parts: int) -> list[Fit]:
+    """The shapes `move` proposes, each searched near it."""
+    shape, n = fit.shape, len(fit.shape.solid)
+    if move.kind == "class":
+        out = [_classed(problem, fit, move.k, 0.01)]
+        if shape.solid[move.k] and n < max_parts:
+            out += [problem.refine(problem.evaluate(_halves(shape, move.k, axis)),
+                                   shape.parts[move.k][3 + axis] / 4, max_sweeps=1)
+                    for axis in (0, 1)]
+        return out
+    grown = problem.evaluate(shape.added(move.part, move.kind == "solid"))
+    return [_classed(problem, grown, n, max(0.02, move.part[3:5].max() / 2))]
+
+
+def choose_structure(problem: Problem, fit: Fit, max_parts: int, budget: int,
+                     skip: Callable[[Move], bool] = lambda move: False
+                     ) -> tuple[Fit, list[Move]]:
+    """Greedy moves on the shape's structure, each polished and kept where it lowers `bic`:
+    dropping a part, a box around the estimate, and the `moves` the readings ask for that
+    `skip` does not refuse, at most `budget` of those. Returns the fit and the moves tried
+    and refused."""
+    refused = []
+    while True:
+        shape = fit.shape
+        # A part is dropped where, unrefined, it costs less than twice its parameters'
+        # price: refining the rest may win the difference back; more it cannot.
+        trials = [t for t in (problem.evaluate(shape.without(k)) for k in range(len(shape.solid))
+                              if not shape.solid[k] or sum(shape.solid) > 1)
+                  if problem.score(t) - problem.score(fit)
+                  < (shape.n_params - t.shape.n_params) * math.log(len(problem))]
+        # The simplest shape, a box around the estimate, is always tried again: a structure
+        # chosen on the first readings must not hold on after more readings explain it away.
+        if len(shape.solid) > 1 or shape.rounded[0]:
+            trials.append(problem.refine(problem.evaluate(box_shape(shape.box(problem.table),
+                                                                    problem.table)), 0.01))
+        asked = [m for m in moves(problem, fit, max_parts) if not skip(m)][:max(budget, 0)]
+        for move in asked:
+            trials += _tried(problem, fit, move, max_parts)
+        budget -= len(asked)
+        if not trials:
+            return fit, refused
+        best = min((problem.refine(t, 0.005, max_sweeps=2) for t in trials), key=problem.score)
+        if problem.score(best) >= problem.score(fit) - 1e-9:
+            return fit, refused + asked
+        fit = best
+        if budget <= 0:
+            return fit, refused
+
+
+def profile(cost, reach: float, rise: float, best: float) -> float:
+    """How far a move can go before `cost(move)` rises by `rise` above the lowest cost met
+    on the way (doubling from 1 mm, then halving to 0.5 mm), at most `reach`: from the lowest,
+    not from `best`, as a cost that falls before it rises bounds nothing."""
+    lowest = best
+
+    def rises(step: float) -> bool:
+        nonlocal lowest
+        c = cost(step)
+        lowest = min(lowest, c)
+        return c - lowest >= rise
+
+    inside, step = 0.0, 0.001
+    while step < reach and not rises(step):
+        inside, step = step, 2 * step
+    if step >= reach:
+        if not rises(reach):
+            return reach
+        step = reach
+    while step - inside > 0.0005:
+        mid = (inside + step) / 2
+        if rises(mid):
+            step = mid
+        else:
+            inside = mid
+    return (inside + step) / 2
+
+
+def _extended(shape: Shape, direction: np.ndarray, support: float, value: float) -> Shape:
+    """`shape` with every solid reaching `support` along the horizontal `direction` (within
+    a millimetre) extended by `value` along it, each along its side most aligned with it."""
+    for k, x in enumerate(shape.parts):
+        if not shape.solid[k]:
+            continue
+        alone = Shape(x[None], (True,), (True,))
+        if float(np.max(alone.footprint() @ direction)) < support - 0.001:
+            continue
+        c, s = math.cos(x[2]), math.sin(x[2])
+        along = np.array([c * direction[0] + s * direction[1],
+                          -s * direction[0] + c * direction[1]])
+        axis = int(np.argmax(np.abs(along)))
+        shape = shape.with_part(k, moved(x, 2 * axis + (1 if along[axis] > 0 else 0),
+                                         value / abs(along[axis])))
+    return shape
+
+
+def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) of the box's length, width and height: how far each of its sides can
+    move in (every solid clipped by it) and out (the solids that reach it extended), the
+    rest held, before the cost rises by `rise`, and at least `floor`. Each move
+    re-evaluates only the zones crossing the slab it can sweep."""
+    shape = fit.shape
+    box = shape.box(problem.table)
+    c, s = math.cos(box.yaw), math.sin(box.yaw)
+    moves_in, moves_out = np.zeros(5), np.zeros(5)
+    for i in range(5):
+        slab = part_of_box(box, problem.table)
+        if i == TOP:
+            normal, support = np.array([0.0, 0.0, 1.0]), problem.table + box.dims[2]
+            slab[3:5] += 2 * reach
+            slab[5] = 2 * reach
+            bottom = support - reach
+        else:
+            axis = np.array([c, s]) if i < 2 else np.array([-s, c])
+            normal = np.r_[axis if i % 2 else -axis, 0.0]
+            support = float(normal[:2] @ box.center[:2]) + box.dims[i // 2] / 2
+            slab[:2] = box.center[:2] + normal[:2] * (box.dims[i // 2] / 2)
+            slab[3 + i // 2] = 2 * reach
+            slab[4 - i // 2] += 2 * reach
+            slab[5] += reach
+            bottom = problem.table
+        zones = np.flatnonzero(forward.crossing(problem.rays.origins, problem.rays.directions,
+                                                slab, bottom).any(axis=1))
+        base = fit.cost - float(fit.costs[zones].sum())
+
+        def cost(trial: Shape, clip: np.ndarray = NO_CLIP, zones=zones, base=base) -> float:
+            return base + problem.evaluate(trial, clip, zones).cost
+
+        def inward(value: float, normal=normal, support=support, cost=cost) -> float:
+            return cost(shape, np.r_[normal, support - value])
+
+        def outward(value: float, normal=normal, support=support, i=i, cost=cost) -> float:
+            if i != TOP:
+                return cost(_extended(shape, normal[:2], support, value))
+            parts = shape.parts.copy()
+            tall = np.array(shape.solid) & (parts[:, 5] >= box.dims[2] - 0.001)
+            parts[tall, 5] += value
+            return cost(dc.replace(shape, parts=parts))
+
+        moves_in[i] = max(profile(inward, reach, rise, fit.cost), floor)
+        moves_out[i] = max(profile(outward, reach, rise, fit.cost), floor)
+
+    def pairs(v: np.ndarray) -> np.ndarray:
+        return np.array([v[0] + v[1], v[2] + v[3], v[4]])
+    return np.maximum(box.dims - pairs(moves_in), 0.0), box.dims + pairs(moves_out)

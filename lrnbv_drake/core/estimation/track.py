@@ -1,0 +1,89 @@
+"""The estimate of an episode, pose by pose: what the stop rule watches, the report gives and
+the poses-to-accuracy metric reads, so that all three are the same estimates.
+
+Acquisition i is folded in once the object's extraction after it is known (the loop logs it
+when it next plans): its cell box is where a cold start begins. The episode's readings and
+extractions give the same track however often it is asked, so a recorded episode is
+estimated again exactly (`lrnbv refit`).
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator
+from lrnbv_drake.core.sensor import ToFFrame
+
+
+@dc.dataclass(frozen=True)
+class EstimateTrack:
+    """The estimate after each acquisition folded in (None: no object found yet) and the
+    seconds each took."""
+
+    estimates: tuple[BoxEstimate | None, ...] = ()
+    seconds: tuple[float, ...] = ()
+
+    @property
+    def latest(self) -> BoxEstimate | None:
+        return self.estimates[-1] if self.estimates else None
+
+
+def cells_estimate(box: OrientedBox | None) -> BoxEstimate | None:
+    """The cell box as an estimate without an interval (`extraction.estimator: cells`)."""
+    return None if box is None else BoxEstimate.of_cells(box)
+
+
+class EpisodeEstimator:
+    """Folds an episode's acquisitions into its estimate track, the shape estimator's, or
+    with no estimator the cell boxes themselves."""
+
+    def __init__(self, estimator: ShapeEstimator | None) -> None:
+        self._estimator = estimator
+        self._track = EstimateTrack()
+
+    @property
+    def track(self) -> EstimateTrack:
+        return self._track
+
+    def update(self, readings: Sequence[tuple[ToFFrame, np.ndarray]],
+               cell_boxes: Sequence[OrientedBox | None], final: bool = False) -> EstimateTrack:
+        """The track after every reading whose cell box is known (`cell_boxes[i]` the one
+        after reading i; None where no object was found) or, `final`, every reading, the
+        last ones started from the last cell box known."""
+        done = len(self._track.estimates)
+        upto = len(readings) if final else min(len(readings), len(cell_boxes))
+        estimates, seconds = list(self._track.estimates), list(self._track.seconds)
+        for i in range(done, upto):
+            cells = cell_boxes[min(i, len(cell_boxes) - 1)] if cell_boxes else None
+            started = time.perf_counter()
+            if self._estimator is None:
+                estimate = cells_estimate(cells)
+            else:
+                self._estimator.add(*readings[i])
+                estimate = self._estimator.estimate(cells)
+            estimates.append(estimate)
+            seconds.append(time.perf_counter() - started)
+        self._track = EstimateTrack(tuple(estimates), tuple(seconds))
+        return self._track
+
+
+def compile_kernels() -> None:
+    """Compiles the estimator's kernels into numba's on-disk cache by estimating a box from
+    one frame of a flat table, so that the first estimate of a process (the first pose's,
+    or the report after a fault on the cell) does not wait for them
+    (`python -m lrnbv_drake.core.kernels`)."""
+    from lrnbv_drake.core.sensor import SensorModelParams
+    from lrnbv_drake.core.tof_device import DeviceBehaviour
+
+    frame = ToFFrame(np.full((8, 8), 400), np.full((8, 8), 5), np.full((8, 8), 5))
+    X_WS = np.diag([1.0, -1.0, -1.0, 1.0])
+    X_WS[2, 3] = 0.4
+    for behaviour in (DeviceBehaviour(), DeviceBehaviour("strongest", 600.0)):
+        estimator = ShapeEstimator(SensorModelParams(), behaviour, 0.0, (-1, -1, 1, 1))
+        estimator.add(frame, X_WS)
+        estimator.estimate(OrientedBox(np.array([0.0, 0.0, 0.025]), np.full(3, 0.05)))

@@ -1,0 +1,56 @@
+"""`BoxEstimation`: the episode's box estimate as a Drake system, a thin wrapper of
+`core.estimation.track.EpisodeEstimator`."""
+
+from __future__ import annotations
+
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import Context, LeafSystem
+
+from lrnbv_drake.core.acquisition import EpisodeLog
+from lrnbv_drake.core.estimation.track import EpisodeEstimator, EstimateTrack
+from lrnbv_drake.core.perception import ExtractionResult
+
+
+def _cell_box(extraction: ExtractionResult | None):
+    return extraction.oriented_box if extraction is not None and extraction.found else None
+
+
+class BoxEstimation(LeafSystem):
+    """Estimates the object's box from the episode's readings, pose by pose.
+
+    @system
+    name: BoxEstimation
+    input_ports:
+    - log
+    output_ports:
+    - box_estimate
+    @endsystem
+
+    `log` is the acquisition loop's `EpisodeLog`; `box_estimate` the `EstimateTrack`: the
+    estimate after each acquisition whose extraction the log holds (the loop logs it when
+    it next plans, and the stop rule reads this port then), the latest last. Like the map,
+    the estimator keeps its warm start outside the Context: the output is computed whenever
+    it is asked (not cached), folds in only what is new, and one system serves one episode.
+    """
+
+    def __init__(self, estimator: EpisodeEstimator) -> None:
+        super().__init__()
+        self._estimator = estimator
+        self._log = self.DeclareAbstractInputPort("log", AbstractValue.Make(EpisodeLog()))
+        self.DeclareAbstractOutputPort(
+            "box_estimate", lambda: AbstractValue.Make(EstimateTrack()),
+            self._calc).disable_caching_by_default()
+
+    def _update(self, context: Context, final: bool) -> EstimateTrack:
+        log: EpisodeLog = self._log.Eval(context)
+        return self._estimator.update([(a.frame, a.X_WS) for a in log.acquisitions],
+                                      [_cell_box(e) for e in log.extractions], final=final)
+
+    def _calc(self, context: Context, output: AbstractValue) -> None:
+        output.set_value(self._update(context, final=False))
+
+    def final_track(self, context: Context) -> EstimateTrack:
+        """The track with every acquisition folded in, those after the last extraction from
+        its cell box: what the report gives when an episode ended before it planned again
+        (a fault, Ctrl-C)."""
+        return self._update(context, final=True)
