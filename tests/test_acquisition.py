@@ -12,6 +12,7 @@ from lrnbv_drake.core.acquisition import (
     cycle_time,
     motion_start,
 )
+from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.motion import MotionFailure, MotionPlan
 from lrnbv_drake.core.planning.policy import Observation, Proposal, ViewpointPolicy
 from lrnbv_drake.core.sensor import ToFFrame
@@ -66,6 +67,7 @@ class Inputs:
         self.q_value = np.zeros(6)
         self.frame_value = ToFFrame.empty()
         self.extraction = None
+        self.estimates_read = 0  # how often the sequencer asked for the estimate track
 
     def frame(self):
         return self.frame_value
@@ -79,6 +81,10 @@ class Inputs:
     def observation(self, n_acquisitions):
         return Observation(time=0.0, q=self.q_value, X_WS=np.eye(4), occupancy=None,
                            extraction=self.extraction, n_acquisitions=n_acquisitions)
+
+    def estimates(self):
+        self.estimates_read += 1
+        return EstimateTrack()
 
 
 def _pose(x):
@@ -100,7 +106,7 @@ def test_one_cycle_moves_settles_records_waits_for_the_map_and_plans_again():
     s = dut.initial_state(np.zeros(6))
     assert s.mode is Mode.PLAN
     s = dut.step(s, 0.0, inputs)
-    assert s.mode is Mode.MOVE
+    assert s.mode is Mode.MOVE and inputs.estimates_read == 0  # nothing to estimate yet
     np.testing.assert_allclose(dut.command(s, 0.5)[0], 0.25)  # half way along the ramp
     s = dut.step(s, 0.9, inputs)
     assert s.mode is Mode.MOVE  # the trajectory ends at 1.0
@@ -125,6 +131,8 @@ def test_one_cycle_moves_settles_records_waits_for_the_map_and_plans_again():
     s = dut.step(s, 1.5, inputs)
     assert (s.mode, s.log.termination) == (Mode.DONE, "done")
     assert s.log.extractions == ["after pose 0"]
+    # The estimate after pose 0 is made as it is planned, with no stop rule to read it.
+    assert inputs.estimates_read == 1
 
 
 def test_unreachable_candidates_fall_through_to_the_next_and_failures_end_the_episode():

@@ -51,7 +51,9 @@ def test_the_final_track_folds_in_what_came_after_the_last_extraction():
                                    for i, (f, X) in enumerate(frames[:3])],
                      extractions=[_found(truth)])
     dut.get_input_port(0).FixValue(context, log)
+    assert len(dut.made.estimates) == 0  # nothing made until asked
     assert len(dut.GetOutputPort("box_estimate").Eval(context).estimates) == 1
+    assert len(dut.made.estimates) == 1
     final = dut.final_track(context)
-    assert len(final.estimates) == 3
+    assert len(final.estimates) == 3 and dut.made == final
     assert all(e.box is truth and e.widths is None for e in final.estimates)

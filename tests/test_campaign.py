@@ -480,7 +480,7 @@ def test_object_sets(tmp_path):
     with pytest.raises(CampaignError, match="share a name"):
         resolve_objects(str(folder))
     for bad in ("nope", "flange,part.step", ","):
-        with pytest.raises(CampaignError, match="expected paper, all"):
+        with pytest.raises(CampaignError, match="expected paper, family, all"):
             resolve_objects(bad)
 
 

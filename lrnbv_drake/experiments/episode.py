@@ -196,7 +196,7 @@ def final_estimates(parts: EpisodeDiagram, root_context: Context) -> tuple[Estim
     and the seconds of the estimates that only this folded in (the loop timed the others
     in its planning)."""
     context = parts.estimation.GetMyContextFromRoot(root_context)
-    before = len(parts.estimation.GetOutputPort("box_estimate").Eval(context).estimates)
+    before = len(parts.estimation.made.estimates)
     track = parts.estimation.final_track(context)
     return track, float(sum(track.seconds[before:]))
 

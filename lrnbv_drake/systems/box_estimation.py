@@ -49,6 +49,11 @@ class BoxEstimation(LeafSystem):
     def _calc(self, context: Context, output: AbstractValue) -> None:
         output.set_value(self._update(context, final=False))
 
+    @property
+    def made(self) -> EstimateTrack:
+        """The estimates made so far, without making any."""
+        return self._estimator.track
+
     def final_track(self, context: Context) -> EstimateTrack:
         """The track with every acquisition folded in, those after the last extraction from
         its cell box: what the report gives when an episode ended before it planned again

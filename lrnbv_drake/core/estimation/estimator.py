@@ -10,8 +10,9 @@ each dimension by its profile interval.
 The misfit says how well the model explains the readings: the fit's cost per degree of
 freedom over what the loss gives for noise of the model's sigma (1 for readings the model
 explains), and the same for the zones that see only the bare table, which no shape explains,
-so their misfit is the sensor model's alone. Every interval's cost rise is scaled by the
-misfit where it exceeds 1, as a least-squares interval is by the reduced chi-square.
+so their misfit is the sensor model's alone. Where the misfit exceeds 1 every interval is
+widened as a least-squares one is by the reduced chi-square: its cost rise scaled by the
+misfit and its floor (half the sub-ray pitch) by the misfit's square root.
 """
 
 from __future__ import annotations
@@ -197,10 +198,10 @@ class ShapeEstimator:
         misfit = fit.cost / max(dof, 1) / self._noise
         table_misfit, n_table = self._table_misfit(fit.shape)
         rise = self.params.interval_level * max(1.0, misfit)
+        floor = self._pitch(problem) / 2 * math.sqrt(max(1.0, misfit))
         flag = misfit > misfit_limit(dof) or table_misfit > misfit_limit(n_table)
         self.last = BoxEstimate(
             fit.shape.box(self._table), fit.shape, fit.cost, len(problem), misfit,
             table_misfit, flag,
-            lambda: intervals(problem, fit, rise, self.params.interval_reach,
-                              self._pitch(problem) / 2))
+            lambda: intervals(problem, fit, rise, self.params.interval_reach, floor))
         return self.last
