@@ -1,5 +1,6 @@
-"""A campaign's results: a results.csv row per episode, summary.md (medians, quartiles and
-Mann-Whitney U tests against the reference planner) and the figures.
+"""A campaign's results: a results.csv row per episode, summary.md (the figures over every
+object, medians, quartiles and Mann-Whitney U tests against the reference planner) and the
+figures.
 
 Rows carry NaN where a report has no value (a failed episode, or a report without `metrics`),
 and every statistic leaves those out.
@@ -18,7 +19,15 @@ import numpy as np
 import yaml
 
 from lrnbv_drake.core.metrics import coverage_auc
-from lrnbv_drake.core.stats import ALPHA, Summary, compare_planners, group_summaries, summarize
+from lrnbv_drake.core.stats import (
+    ALPHA,
+    Summary,
+    compare_planners,
+    finite,
+    group_summaries,
+    mann_whitney,
+    summarize,
+)
 from lrnbv_drake.experiments.campaign.figures import (
     planner_label,
     plot_campaign,
@@ -46,6 +55,7 @@ METRICS: tuple[Metric, ...] = (
     Metric("abs_err_L", "abs. L error (m)"),
     Metric("abs_err_W", "abs. W error (m)"),
     Metric("abs_err_H", "abs. H error (m)"),
+    Metric("worst_err", "worst-dimension error (m)"),
     Metric("iou", "IoU"),
     Metric("coverage_1cm", "coverage, 1 cm"),
     Metric("coverage_2cm", "coverage, 2 cm"),
@@ -66,7 +76,8 @@ CSV_COLUMNS: tuple[str, ...] = (
     "planner", "object", "trial", "seed", "status", "n_poses", "n_useless_poses",
     "coverage_1cm", "coverage_2cm", "auc_1cm", "auc_2cm", "iou",
     "est_L", "est_W", "est_H", "true_L", "true_W", "true_H", "abs_err_L", "abs_err_W",
-    "abs_err_H", "poses_to_5mm", "poses_to_10mm", "truth_in_interval", "container", "fits",
+    "abs_err_H", "worst_err", "poses_to_5mm", "poses_to_10mm", "truth_in_interval",
+    "misfit_flag", "container", "fits",
     "right_size", "wasted_volume", "cycle_s", "motion_s", "settle_s", "computation_s",
     "object_x", "object_y", "object_yaw_deg", "termination", "wall_seconds", "error",
 )
@@ -119,6 +130,9 @@ def episode_row(record: dict[str, Any], auc_budget: int | None = None) -> dict[s
     for prefix, key in (("est", "estimated_dims"), ("true", "true_dims"),
                         ("abs_err", "abs_dim_errors")):
         row.update(zip((f"{prefix}_{d}" for d in "LWH"), _three(metrics.get(key)), strict=True))
+    errors = [row[f"abs_err_{d}"] for d in "LWH"]
+    row["worst_err"] = math.nan if any(map(math.isnan, errors)) else max(errors)
+    row["misfit_flag"] = _flag((record.get("estimated_box") or {}).get("misfit_flag"))
     return row
 
 
@@ -254,6 +268,7 @@ def summary_markdown(config: CampaignConfig, rows: Sequence[dict[str, Any]],
                   "carry no `metrics` (box, IoU, coverage, useless poses): those are n/a and "
                   "only poses and wall time are summarised."]
     lines.append("")
+    lines += _pooled_section(config, ok)
     summaries = group_summaries(ok, [m.column for m in METRICS])
     empty = summarize([])
     for obj in object_labels:
@@ -262,6 +277,49 @@ def summary_markdown(config: CampaignConfig, rows: Sequence[dict[str, Any]],
             [m.label, *(_cell(summaries.get((obj, p), {}).get(m.column, empty))
                         for p in planners)] for m in METRICS))
     return "\n".join(lines + _comparison_section(config, ok)) + "\n"
+
+
+def _share(rows: Sequence[dict[str, Any]], column: str) -> str:
+    values = finite(r[column] for r in rows)
+    return "n/a" if len(values) == 0 else f"{np.mean(values):.2f} (n={len(values)})"
+
+
+def _pooled_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
+    """Each planner over every object and trial: the worst-dimension error's median, 95th
+    percentile and maximum, the shares of the truth inside the interval, of misfits flagged
+    and of containers that fit and are the right size, the poses; and the U test of the
+    worst error and of the poses against the reference planner, pooled."""
+    lines = ["## Over every object", "",
+             "Each planner's finished episodes pooled over objects and trials. The worst error "
+             "is an episode's largest of its L, W and H errors; the interval's share is over "
+             "(episode, dimension) pairs; a share is a mean of 1 (yes) and 0 (no).", ""]
+    body = []
+    for planner in config.planners:
+        rows = [r for r in ok if r["planner"] == planner]
+        worst = finite(r["worst_err"] for r in rows)
+        spread = (["n/a"] * 3 if len(worst) == 0 else
+                  [f"{1000 * v:.1f}" for v in np.percentile(worst, [50, 95, 100])])
+        body.append([planner_label(planner), *spread,
+                     *(_share(rows, c) for c in ("truth_in_interval", "misfit_flag", "fits",
+                                                 "right_size")),
+                     _cell(summarize(r["n_poses"] for r in rows))])
+    lines += _table(["planner", "worst error median (mm)", "p95 (mm)", "max (mm)",
+                     "truth in interval", "misfit flagged", "fits", "right size", "poses"],
+                    body)
+    ref, others = REFERENCE_PLANNER, [p for p in config.planners if p != REFERENCE_PLANNER]
+    if ref in config.planners and others:
+        body = []
+        for other in others:
+            for column, label in (("worst_err", "worst error"), ("n_poses", "poses")):
+                t = mann_whitney((r[column] for r in ok if r["planner"] == ref),
+                                 (r[column] for r in ok if r["planner"] == other))
+                body.append([f"{label}, vs {planner_label(other)}", _fmt(t.u),
+                             _fmt(t.p, snap=False) + (" *" if t.significant else ""),
+                             f"{t.n_a} / {t.n_b}"])
+        lines += [f"Two-sided U tests of {planner_label(ref)} against each other planner, "
+                  "pooled (U as below).", "",
+                  *_table(["metric", "U", "p", "n"], body)]
+    return lines
 
 
 def _comparison_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
