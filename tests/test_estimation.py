@@ -11,9 +11,10 @@ from rendered_views import NOISE_FREE, render
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation import forward
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator, misfit_limit
-from lrnbv_drake.core.estimation.fit import Problem, Shape
+from lrnbv_drake.core.estimation.fit import Problem
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.params import EstimationParams
+from lrnbv_drake.core.estimation.shape import Shape
 from lrnbv_drake.core.sensor import SensorModelParams
 from lrnbv_drake.core.tof_device import DeviceBehaviour
 from lrnbv_drake.station.parts import sensor_behaviour

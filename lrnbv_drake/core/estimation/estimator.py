@@ -1,11 +1,11 @@
 """The object's box estimated from every reading so far, pose by pose: the one estimate the
 stop rule watches and the report gives.
 
-Each `estimate` refits the shape (`fit`) from the last one (a warm start, 6 mm around it) and,
-before the first or where the last estimate lies outside the object's cell box, from the cell
-box (3 cm around it), keeping the lower information criterion; then it tries the structure
-moves the readings ask for (all of them from a cold start, one a pose after), and bounds
-each dimension by its profile interval.
+Each `estimate` refits the shape (`shape`, `fit`) from the last one (a warm start, 6 mm
+around it) and, before the first or where the last estimate lies outside the object's cell
+box, from the cell box (3 cm around it), keeping the lower information criterion; then it
+tries the structure moves the readings ask for (all of them from a cold start, one a pose
+after), and bounds each dimension by its profile interval (`interval`).
 
 The misfit says how well the model explains the readings: the fit's cost per degree of
 freedom over what the loss gives for noise of the model's sigma (1 for readings the model
@@ -26,16 +26,11 @@ import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation import forward
-from lrnbv_drake.core.estimation.fit import (
-    Problem,
-    Shape,
-    box_shape,
-    choose_structure,
-    intervals,
-    part_of_box,
-)
+from lrnbv_drake.core.estimation.fit import Problem, choose_structure
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
+from lrnbv_drake.core.estimation.interval import intervals
 from lrnbv_drake.core.estimation.params import EstimationParams
+from lrnbv_drake.core.estimation.shape import Shape, box_shape, part_of_box
 from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.core.tof_device import DeviceBehaviour
 

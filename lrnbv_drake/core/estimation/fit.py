@@ -1,5 +1,5 @@
-"""Fitting a shape to the readings: one robust objective, a coordinate search, the shape's
-structure chosen by an information criterion, and each dimension's profile interval.
+"""Fitting a shape (`shape`) to the readings: one robust objective, a coordinate search, and
+the shape's structure chosen by an information criterion.
 
 The objective is the soft-L1 sum of every fitted zone's residual in the model's sigma
 (`forward._loss`). Sub-ray sampling makes it piecewise constant in the parts' sides, so it is
@@ -24,17 +24,19 @@ from collections.abc import Callable
 import numpy as np
 import scipy.cluster.hierarchy
 
-from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation import forward
 from lrnbv_drake.core.estimation.forward import NO_CLIP, ReadingRule, ZoneRays
+from lrnbv_drake.core.estimation.shape import (
+    HOLE_HEIGHT,
+    ROUNDINGS,
+    SIDES,
+    TOP,
+    YAW,
+    Shape,
+    box_shape,
+    moved,
+)
 
-#: The roundings a solid part is tried with: an upright cylinder, an ellipsoid, and a
-#: cylinder lying along either side (`forward` module doc); a hole is a box or the first.
-ROUNDINGS = ((1.0, 1.0, 0.0), (1.0, 1.0, 1.0), (0.0, 1.0, 1.0), (1.0, 0.0, 1.0))
-#: Smallest side of a part, metres.
-MIN_SIDE = 0.002
-#: A hole's height: it runs from the table up through every solid.
-HOLE_HEIGHT = 2.0
 #: A zone the shape does not explain: its residual beyond this many sigmas (a chance of
 #: about 0.3 % for the model's noise); and how many such zones a structure move needs.
 OUTLIER = 3.0
@@ -43,125 +45,6 @@ MIN_OUTLIERS = 3
 #: outlier's, as a thin part (a plate on the table) moves each zone by a sigma or two; the
 #: information criterion then decides whether the part stays.
 PROPOSAL = 2.0
-#: Coordinates of a part: its four sides (moved outward), its top, its yaw, its rounding.
-SIDES, TOP, YAW = (0, 1, 2, 3), 4, 5
-
-
-@dc.dataclass(frozen=True)
-class Shape:
-    """Solid parts minus holes (`forward.PART_SIZE` numbers each) and which parts have their
-    rounding free (the others are boxes)."""
-
-    parts: np.ndarray
-    rounded: tuple[bool, ...]
-    solid: tuple[bool, ...]
-
-    @property
-    def n_params(self) -> int:
-        return sum((6 if s else 5) + (3 if s else 2) * r
-                       for r, s in zip(self.rounded, self.solid, strict=True))
-
-    def coordinates(self, k: int) -> tuple[int, ...]:
-        """The coordinates part k is searched in (a hole has no top and no vertical
-        rounding)."""
-        if self.solid[k]:
-            return tuple(range(9 if self.rounded[k] else 6))
-        return (0, 1, 2, 3, YAW, 6, 7) if self.rounded[k] else (0, 1, 2, 3, YAW)
-
-    def with_part(self, k: int, x: np.ndarray, rounded: bool | None = None) -> Shape:
-        parts = self.parts.copy()
-        parts[k] = x
-        flags = list(self.rounded)
-        if rounded is not None:
-            flags[k] = rounded
-        return dc.replace(self, parts=parts, rounded=tuple(flags))
-
-    def added(self, x: np.ndarray, solid: bool) -> Shape:
-        return dc.replace(self, parts=np.vstack([self.parts, x]),
-                          rounded=(*self.rounded, False), solid=(*self.solid, solid))
-
-    def without(self, k: int) -> Shape:
-        keep = [i for i in range(len(self.rounded)) if i != k]
-        return dc.replace(self, parts=self.parts[keep],
-                          rounded=tuple(self.rounded[i] for i in keep),
-                          solid=tuple(self.solid[i] for i in keep))
-
-    def name(self) -> str:
-        """"box", "rounded" or "N parts" (holes counted apart)."""
-        solids, holes = sum(self.solid), len(self.solid) - sum(self.solid)
-        text = (f"{solids} parts" if solids > 1 else
-                "rounded" if any(r and np.any(x[6:] > 0) for r, x, s in
-                                 zip(self.rounded, self.parts, self.solid, strict=True) if s)
-                else "box")
-        return text + (f", {holes} hole{'s' * (holes > 1)}" if holes else "")
-
-    def footprint(self) -> np.ndarray:
-        """(n, 2) points of the solids' footprint whose convex hull is the footprint's."""
-        t = np.linspace(0, 2 * np.pi, 96, endpoint=False)
-        s = np.linspace(-1, 1, 33)
-        points = []
-        for x, solid in zip(self.parts, self.solid, strict=True):
-            if not solid:
-                continue
-            a, b = x[3] / 2, x[4] / 2
-            local = np.concatenate([
-                np.stack([a * np.cos(t) / math.sqrt(max(x[6], 1e-9)),
-                          b * np.sin(t) / math.sqrt(max(x[7], 1e-9))], axis=1),
-                np.stack([np.r_[a * s, a * s, np.full(33, a), np.full(33, -a)],
-                          np.r_[np.full(33, b), np.full(33, -b), b * s, b * s]], axis=1)])
-            inside = ((np.abs(local[:, 0]) <= a + 1e-9) & (np.abs(local[:, 1]) <= b + 1e-9)
-                      & (x[6] * (local[:, 0] / a) ** 2 + x[7] * (local[:, 1] / b) ** 2
-                         <= 1 + 1e-9))
-            c, sn = math.cos(x[2]), math.sin(x[2])
-            points.append(local[inside] @ np.array([[c, sn], [-sn, c]]) + x[:2])
-        return np.concatenate(points)
-
-    def box(self, table: float) -> OrientedBox:
-        """The solids' bounding box: a single part's own box, else the minimum-area box of
-        their footprints."""
-        solids = self.parts[np.array(self.solid)]
-        height = float(solids[:, 5].max())
-        if len(solids) == 1:
-            x = solids[0]
-            return OrientedBox(np.array([x[0], x[1], table + height / 2]),
-                               np.array([x[3], x[4], height]), float(x[2]))
-        points = self.footprint()
-        return OrientedBox.from_points(np.c_[points, np.full(len(points), table + height)],
-                                       floor_z=table)
-
-
-def box_shape(box: OrientedBox, table: float) -> Shape:
-    """One solid box part with the footprint and top of `box` (at least MIN_SIDE each way)."""
-    return Shape(part_of_box(box, table)[None], (False,), (True,))
-
-
-def part_of_box(box: OrientedBox, table: float) -> np.ndarray:
-    """A box part with the footprint and top of `box` (at least MIN_SIDE each way)."""
-    dims = np.maximum(box.dims, MIN_SIDE)
-    top = max(box.center[2] + box.dims[2] / 2 - table, MIN_SIDE)
-    return np.array([box.center[0], box.center[1], box.yaw, dims[0], dims[1], top, 0, 0, 0])
-
-
-def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
-    """Part x with a side moved outward by `value` (0-3), its top raised (4), its yaw turned
-    (5), or its rounding's r (6-8) set to `value`."""
-    y = x.copy()
-    if coordinate in SIDES:
-        axis = 3 + coordinate // 2
-        value = max(value, MIN_SIDE - y[axis])
-        sign = 1.0 if coordinate % 2 else -1.0
-        c, s = math.cos(y[2]), math.sin(y[2])
-        u = (c, s) if axis == 3 else (-s, c)
-        y[axis] += value
-        y[0] += sign * value / 2 * u[0]
-        y[1] += sign * value / 2 * u[1]
-    elif coordinate == TOP:
-        y[5] = max(y[5] + value, MIN_SIDE)
-    elif coordinate == YAW:
-        y[2] += value
-    else:
-        y[coordinate] = min(max(value, 0.0), 1.0)
-    return y
 
 
 def bic(cost: float, n: int, k: int) -> float:
@@ -487,101 +370,3 @@ def choose_structure(problem: Problem, fit: Fit, max_parts: int, budget: int,
         fit = best
         if budget <= 0:
             return fit, refused
-
-
-def profile(cost, reach: float, rise: float, best: float) -> float:
-    """How far a move can go before `cost(move)` rises by `rise` above the lowest cost met
-    on the way (doubling from 1 mm, then halving to 0.5 mm), at most `reach`: from the lowest,
-    not from `best`, as a cost that falls before it rises bounds nothing."""
-    lowest = best
-
-    def rises(step: float) -> bool:
-        nonlocal lowest
-        c = cost(step)
-        lowest = min(lowest, c)
-        return c - lowest >= rise
-
-    inside, step = 0.0, 0.001
-    while step < reach and not rises(step):
-        inside, step = step, 2 * step
-    if step >= reach:
-        if not rises(reach):
-            return reach
-        step = reach
-    while step - inside > 0.0005:
-        mid = (inside + step) / 2
-        if rises(mid):
-            step = mid
-        else:
-            inside = mid
-    return (inside + step) / 2
-
-
-def _extended(shape: Shape, direction: np.ndarray, support: float, value: float) -> Shape:
-    """`shape` with every solid reaching `support` along the horizontal `direction` (within
-    a millimetre) extended by `value` along it, each along its side most aligned with it."""
-    for k, x in enumerate(shape.parts):
-        if not shape.solid[k]:
-            continue
-        alone = Shape(x[None], (True,), (True,))
-        if float(np.max(alone.footprint() @ direction)) < support - 0.001:
-            continue
-        c, s = math.cos(x[2]), math.sin(x[2])
-        along = np.array([c * direction[0] + s * direction[1],
-                          -s * direction[0] + c * direction[1]])
-        axis = int(np.argmax(np.abs(along)))
-        shape = shape.with_part(k, moved(x, 2 * axis + (1 if along[axis] > 0 else 0),
-                                         value / abs(along[axis])))
-    return shape
-
-
-def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: float
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """(lower, upper) of the box's length, width and height: how far each of its sides can
-    move in (every solid clipped by it) and out (the solids that reach it extended), the
-    rest held, before the cost rises by `rise`, and at least `floor`. Each move
-    re-evaluates only the zones crossing the slab it can sweep."""
-    shape = fit.shape
-    box = shape.box(problem.table)
-    c, s = math.cos(box.yaw), math.sin(box.yaw)
-    moves_in, moves_out = np.zeros(5), np.zeros(5)
-    for i in range(5):
-        slab = part_of_box(box, problem.table)
-        if i == TOP:
-            normal, support = np.array([0.0, 0.0, 1.0]), problem.table + box.dims[2]
-            slab[3:5] += 2 * reach
-            slab[5] = 2 * reach
-            bottom = support - reach
-        else:
-            axis = np.array([c, s]) if i < 2 else np.array([-s, c])
-            normal = np.r_[axis if i % 2 else -axis, 0.0]
-            support = float(normal[:2] @ box.center[:2]) + box.dims[i // 2] / 2
-            slab[:2] = box.center[:2] + normal[:2] * (box.dims[i // 2] / 2)
-            slab[3 + i // 2] = 2 * reach
-            slab[4 - i // 2] += 2 * reach
-            slab[5] += reach
-            bottom = problem.table
-        zones = np.flatnonzero(forward.crossing(problem.rays.origins, problem.rays.directions,
-                                                slab, bottom).any(axis=1))
-        base = fit.cost - float(fit.costs[zones].sum())
-
-        def cost(trial: Shape, clip: np.ndarray = NO_CLIP, zones=zones, base=base) -> float:
-            return base + problem.evaluate(trial, clip, zones).cost
-
-        def inward(value: float, normal=normal, support=support, cost=cost) -> float:
-            return cost(shape, np.r_[normal, support - value])
-
-        def outward(value: float, normal=normal, support=support, i=i, cost=cost) -> float:
-            if i != TOP:
-                return cost(_extended(shape, normal[:2], support, value))
-            parts = shape.parts.copy()
-            tall = np.array(shape.solid) & (parts[:, 5] >= box.dims[2] - 0.001)
-            parts[tall, 5] += value
-            return cost(dc.replace(shape, parts=parts))
-
-        moves_in[i] = max(profile(inward, reach, rise, fit.cost), floor)
-        moves_out[i] = max(profile(outward, reach, rise, fit.cost), floor)
-
-    def pairs(v: np.ndarray) -> np.ndarray:
-        return np.array([v[0] + v[1], v[2] + v[3], v[4]])
-    return np.maximum(box.dims - pairs(moves_in), 0.0), box.dims + pairs(moves_out)

@@ -1,0 +1,112 @@
+"""Each dimension's interval: how far each side of the box moves before the fit's cost
+rises by a set amount (a profile of the same objective the fit minimises)."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+
+import numpy as np
+
+from lrnbv_drake.core.estimation import forward
+from lrnbv_drake.core.estimation.fit import Fit, Problem
+from lrnbv_drake.core.estimation.forward import NO_CLIP
+from lrnbv_drake.core.estimation.shape import TOP, Shape, moved, part_of_box
+
+
+def profile(cost, reach: float, rise: float, best: float) -> float:
+    """How far a move can go before `cost(move)` rises by `rise` above the lowest cost met
+    on the way (doubling from 1 mm, then halving to 0.5 mm), at most `reach`: from the lowest,
+    not from `best`, as a cost that falls before it rises bounds nothing."""
+    lowest = best
+
+    def rises(step: float) -> bool:
+        nonlocal lowest
+        c = cost(step)
+        lowest = min(lowest, c)
+        return c - lowest >= rise
+
+    inside, step = 0.0, 0.001
+    while step < reach and not rises(step):
+        inside, step = step, 2 * step
+    if step >= reach:
+        if not rises(reach):
+            return reach
+        step = reach
+    while step - inside > 0.0005:
+        mid = (inside + step) / 2
+        if rises(mid):
+            step = mid
+        else:
+            inside = mid
+    return (inside + step) / 2
+
+
+def _extended(shape: Shape, direction: np.ndarray, support: float, value: float) -> Shape:
+    """`shape` with every solid reaching `support` along the horizontal `direction` (within
+    a millimetre) extended by `value` along it, each along its side most aligned with it."""
+    for k, x in enumerate(shape.parts):
+        if not shape.solid[k]:
+            continue
+        alone = Shape(x[None], (True,), (True,))
+        if float(np.max(alone.footprint() @ direction)) < support - 0.001:
+            continue
+        c, s = math.cos(x[2]), math.sin(x[2])
+        along = np.array([c * direction[0] + s * direction[1],
+                          -s * direction[0] + c * direction[1]])
+        axis = int(np.argmax(np.abs(along)))
+        shape = shape.with_part(k, moved(x, 2 * axis + (1 if along[axis] > 0 else 0),
+                                         value / abs(along[axis])))
+    return shape
+
+
+def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) of the box's length, width and height: how far each of its sides can
+    move in (every solid clipped by it) and out (the solids that reach it extended), the
+    rest held, before the cost rises by `rise`, and at least `floor`. Each move
+    re-evaluates only the zones crossing the slab it can sweep."""
+    shape = fit.shape
+    box = shape.box(problem.table)
+    c, s = math.cos(box.yaw), math.sin(box.yaw)
+    moves_in, moves_out = np.zeros(5), np.zeros(5)
+    for i in range(5):
+        slab = part_of_box(box, problem.table)
+        if i == TOP:
+            normal, support = np.array([0.0, 0.0, 1.0]), problem.table + box.dims[2]
+            slab[3:5] += 2 * reach
+            slab[5] = 2 * reach
+            bottom = support - reach
+        else:
+            axis = np.array([c, s]) if i < 2 else np.array([-s, c])
+            normal = np.r_[axis if i % 2 else -axis, 0.0]
+            support = float(normal[:2] @ box.center[:2]) + box.dims[i // 2] / 2
+            slab[:2] = box.center[:2] + normal[:2] * (box.dims[i // 2] / 2)
+            slab[3 + i // 2] = 2 * reach
+            slab[4 - i // 2] += 2 * reach
+            slab[5] += reach
+            bottom = problem.table
+        zones = np.flatnonzero(forward.crossing(problem.rays.origins, problem.rays.directions,
+                                                slab, bottom).any(axis=1))
+        base = fit.cost - float(fit.costs[zones].sum())
+
+        def cost(trial: Shape, clip: np.ndarray = NO_CLIP, zones=zones, base=base) -> float:
+            return base + problem.evaluate(trial, clip, zones).cost
+
+        def inward(value: float, normal=normal, support=support, cost=cost) -> float:
+            return cost(shape, np.r_[normal, support - value])
+
+        def outward(value: float, normal=normal, support=support, i=i, cost=cost) -> float:
+            if i != TOP:
+                return cost(_extended(shape, normal[:2], support, value))
+            parts = shape.parts.copy()
+            tall = np.array(shape.solid) & (parts[:, 5] >= box.dims[2] - 0.001)
+            parts[tall, 5] += value
+            return cost(dc.replace(shape, parts=parts))
+
+        moves_in[i] = max(profile(inward, reach, rise, fit.cost), floor)
+        moves_out[i] = max(profile(outward, reach, rise, fit.cost), floor)
+
+    def pairs(v: np.ndarray) -> np.ndarray:
+        return np.array([v[0] + v[1], v[2] + v[3], v[4]])
+    return np.maximum(box.dims - pairs(moves_in), 0.0), box.dims + pairs(moves_out)

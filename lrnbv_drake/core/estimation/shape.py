@@ -1,0 +1,137 @@
+"""The fitted shape: solid parts minus holes, each a box standing on the table with a
+quadric rounding (`forward` module doc), and the moves of one coordinate the search makes."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+
+import numpy as np
+
+from lrnbv_drake.core.boxes import OrientedBox
+
+#: The roundings a solid part is tried with: an upright cylinder, an ellipsoid, and a
+#: cylinder lying along either side (`forward` module doc); a hole is a box or the first.
+ROUNDINGS = ((1.0, 1.0, 0.0), (1.0, 1.0, 1.0), (0.0, 1.0, 1.0), (1.0, 0.0, 1.0))
+#: Smallest side of a part, metres.
+MIN_SIDE = 0.002
+#: A hole's height: it runs from the table up through every solid.
+HOLE_HEIGHT = 2.0
+#: Coordinates of a part: its four sides (moved outward), its top, its yaw, its rounding.
+SIDES, TOP, YAW = (0, 1, 2, 3), 4, 5
+
+@dc.dataclass(frozen=True)
+class Shape:
+    """Solid parts minus holes (`forward.PART_SIZE` numbers each) and which parts have their
+    rounding free (the others are boxes)."""
+
+    parts: np.ndarray
+    rounded: tuple[bool, ...]
+    solid: tuple[bool, ...]
+
+    @property
+    def n_params(self) -> int:
+        return sum((6 if s else 5) + (3 if s else 2) * r
+                       for r, s in zip(self.rounded, self.solid, strict=True))
+
+    def coordinates(self, k: int) -> tuple[int, ...]:
+        """The coordinates part k is searched in (a hole has no top and no vertical
+        rounding)."""
+        if self.solid[k]:
+            return tuple(range(9 if self.rounded[k] else 6))
+        return (0, 1, 2, 3, YAW, 6, 7) if self.rounded[k] else (0, 1, 2, 3, YAW)
+
+    def with_part(self, k: int, x: np.ndarray, rounded: bool | None = None) -> Shape:
+        parts = self.parts.copy()
+        parts[k] = x
+        flags = list(self.rounded)
+        if rounded is not None:
+            flags[k] = rounded
+        return dc.replace(self, parts=parts, rounded=tuple(flags))
+
+    def added(self, x: np.ndarray, solid: bool) -> Shape:
+        return dc.replace(self, parts=np.vstack([self.parts, x]),
+                          rounded=(*self.rounded, False), solid=(*self.solid, solid))
+
+    def without(self, k: int) -> Shape:
+        keep = [i for i in range(len(self.rounded)) if i != k]
+        return dc.replace(self, parts=self.parts[keep],
+                          rounded=tuple(self.rounded[i] for i in keep),
+                          solid=tuple(self.solid[i] for i in keep))
+
+    def name(self) -> str:
+        """"box", "rounded" or "N parts" (holes counted apart)."""
+        solids, holes = sum(self.solid), len(self.solid) - sum(self.solid)
+        text = (f"{solids} parts" if solids > 1 else
+                "rounded" if any(r and np.any(x[6:] > 0) for r, x, s in
+                                 zip(self.rounded, self.parts, self.solid, strict=True) if s)
+                else "box")
+        return text + (f", {holes} hole{'s' * (holes > 1)}" if holes else "")
+
+    def footprint(self) -> np.ndarray:
+        """(n, 2) points of the solids' footprint whose convex hull is the footprint's."""
+        t = np.linspace(0, 2 * np.pi, 96, endpoint=False)
+        s = np.linspace(-1, 1, 33)
+        points = []
+        for x, solid in zip(self.parts, self.solid, strict=True):
+            if not solid:
+                continue
+            a, b = x[3] / 2, x[4] / 2
+            local = np.concatenate([
+                np.stack([a * np.cos(t) / math.sqrt(max(x[6], 1e-9)),
+                          b * np.sin(t) / math.sqrt(max(x[7], 1e-9))], axis=1),
+                np.stack([np.r_[a * s, a * s, np.full(33, a), np.full(33, -a)],
+                          np.r_[np.full(33, b), np.full(33, -b), b * s, b * s]], axis=1)])
+            inside = ((np.abs(local[:, 0]) <= a + 1e-9) & (np.abs(local[:, 1]) <= b + 1e-9)
+                      & (x[6] * (local[:, 0] / a) ** 2 + x[7] * (local[:, 1] / b) ** 2
+                         <= 1 + 1e-9))
+            c, sn = math.cos(x[2]), math.sin(x[2])
+            points.append(local[inside] @ np.array([[c, sn], [-sn, c]]) + x[:2])
+        return np.concatenate(points)
+
+    def box(self, table: float) -> OrientedBox:
+        """The solids' bounding box: a single part's own box, else the minimum-area box of
+        their footprints."""
+        solids = self.parts[np.array(self.solid)]
+        height = float(solids[:, 5].max())
+        if len(solids) == 1:
+            x = solids[0]
+            return OrientedBox(np.array([x[0], x[1], table + height / 2]),
+                               np.array([x[3], x[4], height]), float(x[2]))
+        points = self.footprint()
+        return OrientedBox.from_points(np.c_[points, np.full(len(points), table + height)],
+                                       floor_z=table)
+
+
+def box_shape(box: OrientedBox, table: float) -> Shape:
+    """One solid box part with the footprint and top of `box` (at least MIN_SIDE each way)."""
+    return Shape(part_of_box(box, table)[None], (False,), (True,))
+
+
+def part_of_box(box: OrientedBox, table: float) -> np.ndarray:
+    """A box part with the footprint and top of `box` (at least MIN_SIDE each way)."""
+    dims = np.maximum(box.dims, MIN_SIDE)
+    top = max(box.center[2] + box.dims[2] / 2 - table, MIN_SIDE)
+    return np.array([box.center[0], box.center[1], box.yaw, dims[0], dims[1], top, 0, 0, 0])
+
+
+def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
+    """Part x with a side moved outward by `value` (0-3), its top raised (4), its yaw turned
+    (5), or its rounding's r (6-8) set to `value`."""
+    y = x.copy()
+    if coordinate in SIDES:
+        axis = 3 + coordinate // 2
+        value = max(value, MIN_SIDE - y[axis])
+        sign = 1.0 if coordinate % 2 else -1.0
+        c, s = math.cos(y[2]), math.sin(y[2])
+        u = (c, s) if axis == 3 else (-s, c)
+        y[axis] += value
+        y[0] += sign * value / 2 * u[0]
+        y[1] += sign * value / 2 * u[1]
+    elif coordinate == TOP:
+        y[5] = max(y[5] + value, MIN_SIDE)
+    elif coordinate == YAW:
+        y[2] += value
+    else:
+        y[coordinate] = min(max(value, 0.0), 1.0)
+    return y
