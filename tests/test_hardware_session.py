@@ -26,7 +26,7 @@ from lrnbv_drake.core.robot_safety import RobotFault
 from lrnbv_drake.core.sensor import ToFFrame
 from lrnbv_drake.drivers.rtde_robot import RtdeRobot
 from lrnbv_drake.drivers.tof_serial import SensorError, SensorTimeout, ToFSerialReader
-from lrnbv_drake.experiments import episode, session
+from lrnbv_drake.experiments import episode, session, session_preflight
 from lrnbv_drake.experiments.episode import run_episode
 from lrnbv_drake.experiments.recording import AcquisitionJournal, RecordingError
 from lrnbv_drake.experiments.session import SESSION_FILE, SessionError, resume, run_session
@@ -348,7 +348,7 @@ def test_a_failure_while_the_episode_is_built_closes_the_robot(scenario, tmp_pat
     def broken_policy(*args, **kwargs):
         raise ValueError("the policy could not be built")
     monkeypatch.setattr(episode, "make_policy", broken_policy)
-    monkeypatch.setattr(session, "_preflight", lambda *args: None)
+    monkeypatch.setattr(session, "preflight", lambda *args: None)
     with pytest.raises(ValueError, match="the policy could not be built"):
         run_session(scenario, "heu", tmp_path / "out", confirm=lambda text: True)
     names = arm.names()
@@ -457,7 +457,7 @@ def test_a_silent_sensor_is_found_before_anything_moves(scenario, q_first_pose, 
                                                         monkeypatch):
     arm = fake_rtde.FakeArm(q_first_pose)
     fake_rtde.install(monkeypatch, arm)
-    monkeypatch.setattr(session, "SENSOR_CHECK_TIMEOUT", 0.3)
+    monkeypatch.setattr(session_preflight, "SENSOR_CHECK_TIMEOUT", 0.3)
     silent = load_scenario(data="hardware: {sensor_driver: serial}\n"
                                 "sensor: {serial_port: 'loop://'}", defaults=scenario)
     with pytest.raises(SensorTimeout, match="no frame from loop://"):
@@ -474,7 +474,7 @@ def test_a_sensor_at_another_resolution_is_found_before_anything_moves(
         def wait_for_frame(self, newer_than_sequence=0, timeout=None):
             return ToFFrame.empty(4, sequence=1)
 
-    monkeypatch.setattr(session, "ToFSerialReader", FourByFourBoard)
+    monkeypatch.setattr(session_preflight, "ToFSerialReader", FourByFourBoard)
     serial = load_scenario(data="hardware: {sensor_driver: serial}\n"
                                 "sensor: {serial_port: 'loop://'}", defaults=scenario)
     with pytest.raises(SensorError, match="loop:// streams 4x4 zones"):

@@ -57,7 +57,7 @@ DEVICE = textwrap.dedent("""\
     import sys
     import numpy as np
     from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams
-    from lrnbv_drake.core.sensor_calibration import edge_scene_depths
+    from lrnbv_drake.core.mixed_zone_calibration import edge_scene_depths
     from lrnbv_drake.core.tof_device import DeviceBehaviour, device_readings
     p = SensorModelParams(noise=NoiseModel(0, 0))
     d = edge_scene_depths(p.geometry, 8, 0.0, 400.0, 700.0)

@@ -1,6 +1,7 @@
-"""Calibrating the sensor model (`core/sensor_calibration.py`) on synthetic recordings of
-known devices, Drake-free: frames come from `device_readings` on zone sub-samples worked out
-from each scene's geometry, sampled finer (12 x 12 per zone) than the model samples (8 x 8).
+"""Calibrating the sensor model (`core/sensor_calibration.py`, `core/mixed_zone_calibration.py`)
+on synthetic recordings of known devices, Drake-free: frames come from `device_readings` on
+zone sub-samples worked out from each scene's geometry, sampled finer (12 x 12 per zone) than
+the model samples (8 x 8).
 Targets (issue 15): zone directions within 0.3 deg, noise law within 20 %, the mixed-zone rule
 on at least 90 % of the zones the edge crosses."""
 
@@ -12,6 +13,16 @@ import math
 import numpy as np
 import pytest
 
+from lrnbv_drake.core.mixed_zone_calibration import (
+    FAR,
+    MERGED,
+    NEAR,
+    NONE,
+    _fit_min_share,
+    edge_scene_depths,
+    edge_steps,
+    fit_mixed_zone_rule,
+)
 from lrnbv_drake.core.sensor import (
     STATUS_NO_TARGET,
     STATUS_VALID,
@@ -21,14 +32,6 @@ from lrnbv_drake.core.sensor import (
     frame_rng,
 )
 from lrnbv_drake.core.sensor_calibration import (
-    FAR,
-    MERGED,
-    NEAR,
-    NONE,
-    _fit_min_share,
-    edge_scene_depths,
-    edge_steps,
-    fit_mixed_zone_rule,
     fit_noise_model,
     fit_zone_directions,
     target_hits,

@@ -24,14 +24,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from lrnbv_drake.core.mixed_zone_calibration import MixedZoneFit, edge_steps, fit_mixed_zone_rule
 from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame, ZoneGeometry
 from lrnbv_drake.core.sensor_calibration import (
-    MixedZoneFit,
     NoiseFit,
     ZoneDirectionFit,
     ZoneNoise,
-    edge_steps,
-    fit_mixed_zone_rule,
     fit_noise_model,
     fit_zone_directions,
     on_target,

@@ -1,8 +1,9 @@
 """Running an episode on the real cell: confirmation, crash-safe recording, faults and resume.
 
-`run_session` checks the robot's current pose against the model, asks for an explicit
-confirmation, builds the episode with the hardware cell (`build_episode(..., hardware=True)`)
-and runs it in real time. The output folder fills up as the episode goes:
+`run_session` checks the robot's current pose against the model (`session_preflight`), asks
+for an explicit confirmation, builds the episode with the hardware cell
+(`build_episode(..., hardware=True)`) and runs it in real time. The output folder fills up as
+the episode goes:
 
 - `session.json`    the scenario actually used (YAML), the planner, and one entry per run
                     (start joints, wall time, acquisitions already recorded);
@@ -49,9 +50,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Context
 
 from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
-from lrnbv_drake.core.robot_safety import Ur5eStatus, read_status, tcp_pose_error
-from lrnbv_drake.drivers.rtde_robot import RtdeRobot
-from lrnbv_drake.drivers.tof_serial import SerialStats, ToFSerialReader, check_resolution
+from lrnbv_drake.drivers.tof_serial import SerialStats
 from lrnbv_drake.experiments.episode import (
     PLANNERS,
     EpisodeDiagram,
@@ -68,26 +67,21 @@ from lrnbv_drake.experiments.recording import (
 )
 from lrnbv_drake.experiments.report import episode_report
 from lrnbv_drake.experiments.session_monitor import JOURNAL_FILE, SessionMonitor
+from lrnbv_drake.experiments.session_preflight import (
+    SessionError,
+    check_sensor,
+    preflight,
+    read_robot,
+)
 from lrnbv_drake.station.hardware_cell import check_hardware_config
-from lrnbv_drake.station.motion import MotionPlanner
-from lrnbv_drake.station.parts import check_scenario_files, safety_limits
+from lrnbv_drake.station.parts import check_scenario_files
 from lrnbv_drake.station.scenario import Scenario, load_scenario, override
 
 _log = logging.getLogger(__name__)
 
 SESSION_FILE = "session.json"
-#: A controller TCP pose this far from our tool0 (m, rad) is reported before the first motion.
-TCP_WARN = (0.002, 0.01)
-#: Longest wait for a frame when checking the sensor before the first motion, seconds: a board
-#: may reset when its port is opened (about 1 s), and its sketch then uploads 86 kB of firmware
-#: into the sensor (about 2 s at 400 kHz) before the first ranging.
-SENSOR_CHECK_TIMEOUT = 5.0
 
 Confirm = Callable[[str], bool]
-
-
-class SessionError(RuntimeError):
-    """The session cannot start (or resume) as asked; nothing has moved."""
 
 
 @dc.dataclass
@@ -148,60 +142,6 @@ class _HeldInterrupt:
 
 
 # --- Starting and resuming -------------------------------------------------------------------
-
-
-def _read_robot(scenario: Scenario, must_be_ready: bool) -> np.ndarray:
-    """The arm's joints now, read over read-only RTDE (no control script, nothing moves).
-
-    With `must_be_ready`, a robot in a stop or not running raises its RobotFault."""
-    hw = scenario.hardware
-    probe = RtdeRobot(scenario.robot.robot_ip, frequency=hw.rtde_frequency,
-                      upper_range_registers=hw.upper_range_registers, control=False)
-    try:
-        status = read_status(probe, 0.0, Ur5eStatus(), hw.rtde_timeout)
-    finally:
-        probe.disconnect()
-    fault = status.fault(scenario.robot.robot_ip)
-    # The read-only probe has no control script; the real connection uploads it.
-    if must_be_ready and fault is not None and fault.kind != "script_stopped":
-        raise fault
-    dp, dr = tcp_pose_error(status.q, status.tcp_pose)
-    if dp > TCP_WARN[0] or dr > TCP_WARN[1]:
-        _log.warning("the controller's TCP pose is %.1f mm and %.2f deg from the model's tool0 "
-                     "at the same joints: is a TCP offset set on the pendant? The planner "
-                     "only uses the joints, but check the frames (docs/hardware.md)",
-                     dp * 1e3, np.rad2deg(dr))
-    return status.q
-
-
-def _preflight(scenario: Scenario, q: np.ndarray) -> None:
-    """Refuses to start from joints the model says collide or the sender would refuse."""
-    motion = MotionPlanner(scenario)
-    if not motion.collision_free(q):
-        raise SessionError(
-            f"the arm's current joints {np.round(q, 3).tolist()} collide with the modelled "
-            f"cell (table, object, itself): either the scenario does not describe the cell, or "
-            f"the arm must first be jogged to a free pose")
-    limits = safety_limits(scenario, motion.X_W_base, motion.X_tool0_S)
-    refusal = limits.check(q, q, np.zeros(6), q, scenario.hardware.servo_period)
-    if refusal is not None:
-        raise SessionError(f"cannot start from the arm's current joints: {refusal.reason}; "
-                           f"jog the arm into the workspace (and the controller's joint "
-                           f"limits) first")
-
-
-def _check_sensor(scenario: Scenario) -> None:
-    """Waits for one frame from the serial sensor, so that the arm never moves blind, and
-    checks that its zones are the scenario's.
-
-    Raises:
-        SensorTimeout: naming the port and what the driver saw.
-        SensorError: the board streams another resolution.
-    """
-    s = scenario.sensor
-    with ToFSerialReader(s.serial_port, s.baud) as sensor:
-        check_resolution(sensor.wait_for_frame(0, timeout=SENSOR_CHECK_TIMEOUT), s.resolution,
-                         s.serial_port)
 
 
 def _confirmation_text(scenario: Scenario, planner: str, out_dir: Path) -> str:
@@ -343,14 +283,14 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
     check_hardware_config(scenario)
     check_scenario_files(scenario, scenario.hardware.sensor_driver == "simulated")
     if scenario.robot.robot_ip:
-        q_start = _read_robot(scenario, must_be_ready=not dry_run)
+        q_start = read_robot(scenario, must_be_ready=not dry_run)
     elif recorded:  # a dry run without a robot resumes at the last recorded pose
         q_start = recorded[-1].q
     else:
         q_start = np.asarray(scenario.robot.initial_position, float)
-    _preflight(scenario, q_start)
+    preflight(scenario, q_start)
     if scenario.hardware.sensor_driver == "serial":
-        _check_sensor(scenario)
+        check_sensor(scenario)
     scenario = override(scenario, {"robot": {"initial_position": q_start.tolist()}})
     if not dry_run and not confirm(_confirmation_text(scenario, planner, out_dir)):
         return SessionResult(out_dir, "the operator did not confirm: nothing moved",

@@ -9,7 +9,6 @@ with the file, the field path and what was expected, instead of a bare conversio
 # No `from __future__ import annotations` here: Drake's YAML loader reads `Field.type`, which
 # postponed annotations would turn into strings.
 import dataclasses as dc
-import types
 import typing
 from pathlib import Path
 
@@ -22,7 +21,12 @@ from lrnbv_drake.core.kinematics import HOME
 from lrnbv_drake.core.planning.config import HeuParams, PlannerParams
 from lrnbv_drake.station.hardware_config import HardwareConfig
 from lrnbv_drake.station.resources import package_url
-from lrnbv_drake.station.scenario_checks import ScenarioError, check_ranges, parse_yaml
+from lrnbv_drake.station.scenario_checks import (
+    ScenarioError,
+    check_against_schema,
+    check_ranges,
+    parse_yaml,
+)
 
 __all__ = ["Scenario", "ScenarioError", "load_scenario", "override", "recorded_scenario"]
 
@@ -294,70 +298,6 @@ class Scenario:
 
 def _from_yaml(text: str) -> "Scenario":
     return yaml_load_typed(schema=Scenario, data=text)
-
-
-def _type_name(tp: typing.Any) -> str:
-    return getattr(tp, "__name__", str(tp))
-
-
-def _check_value(value: typing.Any, tp: typing.Any, path: str) -> None:
-    origin = typing.get_origin(tp)
-    if origin in (typing.Union, types.UnionType):
-        errors = []
-        for option in typing.get_args(tp):
-            if option is type(None):  # `X | None`: None is fine, anything else must be an X
-                if value is None:
-                    return
-                continue
-            try:
-                _check_value(value, option, path)
-                return
-            except ScenarioError as e:
-                errors.append(str(e))
-        raise ScenarioError(errors[-1])
-    if dc.is_dataclass(tp) or hasattr(tp, "__fields__"):
-        if not isinstance(value, dict):
-            raise ScenarioError(f"field '{path}': expected a mapping of {tp.__name__} fields, "
-                                f"got {value!r}")
-        check_against_schema(value, tp, path)
-        return
-    if origin is list:
-        if not isinstance(value, list):
-            raise ScenarioError(f"field '{path}': expected a list, got {value!r}")
-        (item,) = typing.get_args(tp)
-        for i, v in enumerate(value):
-            _check_value(v, item, f"{path}[{i}]")
-        return
-    if tp is float:
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-    elif tp is int:
-        ok = isinstance(value, int) and not isinstance(value, bool)
-    elif tp is bool:
-        ok = isinstance(value, bool)
-    elif tp is str:
-        ok = isinstance(value, str)
-    else:
-        ok = True
-    if not ok:
-        raise ScenarioError(f"field '{path}': expected {_type_name(tp)}, got {value!r}")
-
-
-def check_against_schema(data: typing.Any, schema: type, path: str = "") -> None:
-    """Raises ScenarioError naming the first field of `data` that does not fit `schema`."""
-    if not isinstance(data, dict):
-        raise ScenarioError(f"expected a mapping of {schema.__name__} fields at "
-                            f"'{path or '<top>'}', got {data!r}")
-    if dc.is_dataclass(schema):
-        hints = typing.get_type_hints(schema)
-    else:  # a Drake struct bound with its serialisable fields, e.g. VisualizationConfig
-        hints = {f.name: f.type for f in schema.__fields__}
-    names = set(hints)
-    for key, value in data.items():
-        where = f"{path}.{key}" if path else str(key)
-        if key not in names:
-            raise ScenarioError(f"field '{where}' is not part of {schema.__name__}; expected "
-                                f"one of {sorted(names)}")
-        _check_value(value, hints[key], where)
 
 
 #: Named starting points for a scenario (`--preset NAME`): "paper" is the paper's

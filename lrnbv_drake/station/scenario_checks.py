@@ -1,18 +1,22 @@
 """Checks a scenario's values, and where its object sits in the cell, before anything is built.
 
-`station.scenario` checks the types (an int where an int belongs); these check what the types
-cannot: ranges (`samples_per_iteration: -5` would plan nothing, `max_poses: 0` would still take
-a pose), YAML that a plain load accepts but means two things (a duplicate key), and placements
-the episode could never resolve (a 150 m mesh read in millimetres, an object outside the
-mapped volume or inside the robot's base), so that each fails at once with the field named and
-what was expected, instead of minutes later, out of memory or with "no object found".
+`check_against_schema` checks the types (an int where an int belongs) against the
+scenario's dataclasses; the rest check what the types cannot: ranges
+(`samples_per_iteration: -5` would plan nothing, `max_poses: 0` would still take a pose), YAML
+that a plain load accepts but means two things (a duplicate key), and placements the episode
+could never resolve (a 150 m mesh read in millimetres, an object outside the mapped volume or
+inside the robot's base), so that each fails at once with the field named and what was
+expected, instead of minutes later, out of memory or with "no object found".
 The `hardware` section is `station.hardware_cell.check_hardware_config`'s; the simulation-only
 `device` section is not read here (only the simulated sensor may read it, test_device_section).
 """
 
 from __future__ import annotations
 
+import dataclasses as dc
 import math
+import types
+import typing
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -228,6 +232,70 @@ def parse_yaml(text: str, label: str) -> Any:
 
 
 # --- The object in the cell ------------------------------------------------------------------
+
+
+def _type_name(tp: typing.Any) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _check_value(value: typing.Any, tp: typing.Any, path: str) -> None:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        errors = []
+        for option in typing.get_args(tp):
+            if option is type(None):  # `X | None`: None is fine, anything else must be an X
+                if value is None:
+                    return
+                continue
+            try:
+                _check_value(value, option, path)
+                return
+            except ScenarioError as e:
+                errors.append(str(e))
+        raise ScenarioError(errors[-1])
+    if dc.is_dataclass(tp) or hasattr(tp, "__fields__"):
+        if not isinstance(value, dict):
+            raise ScenarioError(f"field '{path}': expected a mapping of {tp.__name__} fields, "
+                                f"got {value!r}")
+        check_against_schema(value, tp, path)
+        return
+    if origin is list:
+        if not isinstance(value, list):
+            raise ScenarioError(f"field '{path}': expected a list, got {value!r}")
+        (item,) = typing.get_args(tp)
+        for i, v in enumerate(value):
+            _check_value(v, item, f"{path}[{i}]")
+        return
+    if tp is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    elif tp is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif tp is bool:
+        ok = isinstance(value, bool)
+    elif tp is str:
+        ok = isinstance(value, str)
+    else:
+        ok = True
+    if not ok:
+        raise ScenarioError(f"field '{path}': expected {_type_name(tp)}, got {value!r}")
+
+
+def check_against_schema(data: typing.Any, schema: type, path: str = "") -> None:
+    """Raises ScenarioError naming the first field of `data` that does not fit `schema`."""
+    if not isinstance(data, dict):
+        raise ScenarioError(f"expected a mapping of {schema.__name__} fields at "
+                            f"'{path or '<top>'}', got {data!r}")
+    if dc.is_dataclass(schema):
+        hints = typing.get_type_hints(schema)
+    else:  # a Drake struct bound with its serialisable fields, e.g. VisualizationConfig
+        hints = {f.name: f.type for f in schema.__fields__}
+    names = set(hints)
+    for key, value in data.items():
+        where = f"{path}.{key}" if path else str(key)
+        if key not in names:
+            raise ScenarioError(f"field '{where}' is not part of {schema.__name__}; expected "
+                                f"one of {sorted(names)}")
+        _check_value(value, hints[key], where)
 
 
 def _dims(values: Sequence[float]) -> str:
