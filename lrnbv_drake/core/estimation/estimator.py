@@ -5,7 +5,9 @@ Each `estimate` refits the shape (`shape`, `fit`) from the last one (a warm star
 around it) and, before the first or where the last estimate lies outside the object's cell
 box, from the cell box (3 cm around it), keeping the lower information criterion; then it
 tries the structure moves the readings ask for (all of them from a cold start, one a pose
-after), and bounds each dimension by its profile interval (`interval`).
+after), and bounds each dimension by its profile interval (`interval`). A warm refit the
+readings misfit while the bare table fits the model is searched again cold, from both starts:
+a warm path can keep a structure the first readings chose that a cold one would not.
 
 The misfit says how well the model explains the readings: the fit's cost per degree of
 freedom over what the loss gives for noise of the model's sigma (1 for readings the model
@@ -26,7 +28,7 @@ import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation import forward
-from lrnbv_drake.core.estimation.fit import Problem, choose_structure
+from lrnbv_drake.core.estimation.fit import Fit, Problem, choose_structure
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.interval import intervals
 from lrnbv_drake.core.estimation.params import EstimationParams
@@ -160,43 +162,61 @@ class ShapeEstimator:
         costs = problem.evaluate(Shape(np.zeros((0, forward.PART_SIZE)), (), ())).costs
         return float(costs.mean() / self._noise), len(costs)
 
-    def estimate(self, start: OrientedBox | None = None) -> BoxEstimate | None:
-        """Refits (the module doc) from the last estimate and, before the first or where
-        less than half the last one's footprint lies inside `start` (the cell box, which
-        mixed zones make larger than the object), from `start`; the last estimate again
-        when no reading sees either."""
-        last = self.last
-        starts = []
-        if last is not None:
-            starts.append((last.shape, 0.006))
-        if start is not None and (last is None or last.box.footprint_share(start) < 0.5):
-            starts.append((box_shape(start, self._table), 0.03))
-        if not starts or not self._rays:
-            return last
-        problem = self._problem([s.box(self._table) for s, _ in starts])
-        if len(problem) <= 9:
-            return last
-        warm = (last is not None, False)
-        fit = min((problem.refine(problem.evaluate(shape), span, max_sweeps=2 if w else 4)
-                   for (shape, span), w in zip(starts, warm[:len(starts)], strict=True)),
-                  key=problem.score)
-        dof = len(problem) - fit.shape.n_params
-        misfit = fit.cost / max(dof, 1) / self._noise
-        cold = last is None or len(starts) > 1
+    def _search(self, problem: Problem, starts: list[tuple[Shape, float, int]],
+                cold: bool) -> Fit:
+        """The best of `starts` ((shape, span, sweeps) each) refined, and its structure searched:
+        every move the readings ask for from a cold start, one from a warm one (the last
+        estimate alone), whose refused moves are remembered."""
+        fit = min((problem.refine(problem.evaluate(shape), span, max_sweeps=sweeps)
+                   for shape, span, sweeps in starts), key=problem.score)
         if cold:
             self._refused = {}
         fit, refused = choose_structure(
             problem, fit, self.params.max_parts, budget=3 * self.params.max_parts if cold else 1,
             skip=lambda m: self._refused.get((m.kind, m.k), 0) * 2 >= m.evidence)
         self._refused.update({(m.kind, m.k): m.evidence for m in refused})
+        return fit
+
+    def _misfits(self, problem: Problem, fit: Fit) -> tuple[float, bool, float, bool]:
+        """The fit's misfit and whether it is flagged; the same for the bare table's zones."""
         dof = len(problem) - fit.shape.n_params
         misfit = fit.cost / max(dof, 1) / self._noise
         table_misfit, n_table = self._table_misfit(fit.shape)
+        return (misfit, misfit > misfit_limit(dof), table_misfit,
+                table_misfit > misfit_limit(n_table))
+
+    def estimate(self, start: OrientedBox | None = None) -> BoxEstimate | None:
+        """Refits (the module doc) from the last estimate and, before the first or where
+        less than half the last one's footprint lies inside `start` (the cell box, which
+        mixed zones make larger than the object), from `start`; the last estimate again
+        when no reading sees either. A warm refit the readings misfit while the bare table
+        fits the model (so the shape, not the sensor model, is what is wrong) is searched
+        again from both, cold."""
+        last = self.last
+        starts = []
+        if last is not None:
+            starts.append((last.shape, 0.006, 2))
+        if start is not None and (last is None or last.box.footprint_share(start) < 0.5):
+            starts.append((box_shape(start, self._table), 0.03, 4))
+        if not starts or not self._rays:
+            return last
+        problem = self._problem([s[0].box(self._table) for s in starts])
+        if len(problem) <= 9:
+            return last
+        cold = last is None or len(starts) > 1
+        fit = self._search(problem, starts, cold)
+        misfit, flag, table_misfit, table_flag = self._misfits(problem, fit)
+        if flag and not table_flag and not cold and start is not None:
+            # The warm fit is a start of the cold search, which keeps it unless it finds
+            # a shape of lower criterion on the same zones.
+            starts = [(fit.shape, 0.006, 2), (box_shape(start, self._table), 0.03, 4)]
+            problem = self._problem([s[0].box(self._table) for s in starts])
+            fit = self._search(problem, starts, cold=True)
+            misfit, flag, table_misfit, table_flag = self._misfits(problem, fit)
         rise = self.params.interval_level * max(1.0, misfit)
         floor = self._pitch(problem) / 2 * math.sqrt(max(1.0, misfit))
-        flag = misfit > misfit_limit(dof) or table_misfit > misfit_limit(n_table)
         self.last = BoxEstimate(
             fit.shape.box(self._table), fit.shape, fit.cost, len(problem), misfit,
-            table_misfit, flag,
+            table_misfit, flag or table_flag,
             lambda: intervals(problem, fit, rise, self.params.interval_reach, floor))
         return self.last
