@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from lrnbv_drake.cli.benchmark import add_benchmark_command, run_benchmark
-from lrnbv_drake.core.objects import PAPER_OBJECTS
+from lrnbv_drake.core.evaluation.objects import PAPER_OBJECTS
 from lrnbv_drake.experiments.episode import PLANNERS
 
 TARGET_SECONDS = 300.0

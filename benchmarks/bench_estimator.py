@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from lrnbv_drake.core.perception import extract_object
+from lrnbv_drake.core.mapping.extraction import extract_object
 from lrnbv_drake.experiments.episode import run_episode
 from lrnbv_drake.station.parts import episode_estimator, extraction_params
 from lrnbv_drake.station.scenario import Scenario, override

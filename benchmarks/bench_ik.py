@@ -23,7 +23,7 @@ from pydrake.multibody.inverse_kinematics import InverseKinematics
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.solvers import SnoptSolver, Solve
 
-from lrnbv_drake.core import kinematics as kin
+from lrnbv_drake.core.robot import kinematics as kin
 from lrnbv_drake.station.resources import make_parser, package_url
 
 POSITION_TOL = 1e-3

@@ -19,7 +19,7 @@ import numpy as np
 from pyoctomap import OcTree
 
 from lrnbv_drake.core.mapping import OccupancyMap, frame_scan
-from lrnbv_drake.core.sensor import STATUS_NO_TARGET, STATUS_VALID, ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import STATUS_NO_TARGET, STATUS_VALID, ToFFrame, ZoneGeometry
 
 RESOLUTION = 0.01
 BOUNDS = ((-0.9, -0.9, -0.05), (0.9, 0.9, 0.9))

@@ -1,5 +1,5 @@
 """Milliseconds per simulated VL53L8CX frame: render + reduction, and each alone; and the
-`datasheet` device's reduction (core/tof_device.py) against the ideal one in the same run.
+`datasheet` device's reduction (core/sensing/tof_device.py) against the ideal one in the same run.
 
 The scene is a tabletop one as the NBV loop sees it: a table, a box on it 0.3-0.5 m from the
 sensor, and a wall behind, viewed from 0.4 m above the table looking down 45 degrees. Target:
@@ -24,8 +24,8 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from lrnbv_drake.core.sensor import SensorModelParams, frame_rng, zone_readings
-from lrnbv_drake.core.tof_device import PROFILES, device_readings, illumination_weight
+from lrnbv_drake.core.sensing.sensor import SensorModelParams, frame_rng, zone_readings
+from lrnbv_drake.core.sensing.tof_device import PROFILES, device_readings, illumination_weight
 from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer, sample_zone_depths
 
 # Sensor 0.4 m above the table top, optical axis pitched 45 degrees down towards +x.

@@ -32,8 +32,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.robot_safety import SafetyLimits, Ur5eStatus, tcp_pose_from_q
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.robot.safety import SafetyLimits, Ur5eStatus, tcp_pose_from_q
 from lrnbv_drake.drivers import rtde_client, rtde_robot
 
 #: How late ur_rtde's isConnected() notices a silent drop, seconds.

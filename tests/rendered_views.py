@@ -7,9 +7,9 @@ import dataclasses as dc
 import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
-from lrnbv_drake.core.metrics import true_box
-from lrnbv_drake.core.poses import look_at
-from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame
+from lrnbv_drake.core.evaluation.metrics import true_box
+from lrnbv_drake.core.robot.poses import look_at
+from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import sensor_params
 from lrnbv_drake.station.scenario import load_scenario

@@ -13,9 +13,9 @@ from lrnbv_drake.core.acquisition import (
     motion_start,
 )
 from lrnbv_drake.core.estimation.track import EstimateTrack
-from lrnbv_drake.core.motion import MotionFailure, MotionPlan
 from lrnbv_drake.core.planning.policy import Observation, Proposal, ViewpointPolicy
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.robot.motion import MotionFailure, MotionPlan
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 
 PERIOD, FRAME_PERIOD = 0.05, 0.1
 

@@ -7,9 +7,9 @@ from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 
 from lrnbv_drake.core.acquisition import HOLD_TOLERANCE, Acquisition, EpisodeLog
-from lrnbv_drake.core.motion import MotionFailure, MotionPlan
 from lrnbv_drake.core.planning.policy import Proposal, ViewpointPolicy
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.robot.motion import MotionFailure, MotionPlan
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.station.motion import trapezoidal_trajectory
 from lrnbv_drake.systems.acquisition_loop import AcquisitionLoop
 

@@ -7,7 +7,7 @@ from rendered_views import render
 from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
 from lrnbv_drake.core.estimation.estimator import ShapeEstimator
 from lrnbv_drake.core.estimation.track import EpisodeEstimator
-from lrnbv_drake.core.perception import ExtractionResult, ExtractionStatus
+from lrnbv_drake.core.mapping.extraction import ExtractionResult, ExtractionStatus
 from lrnbv_drake.station.parts import sensor_behaviour
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.systems.box_estimation import BoxEstimation

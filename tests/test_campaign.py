@@ -18,9 +18,14 @@ import numpy as np
 import pytest
 
 from lrnbv_drake.cli.benchmark import add_benchmark_command, config_from_args, run_benchmark
-from lrnbv_drake.core import objects
-from lrnbv_drake.core.metrics import BoxMetrics, EpisodeMetrics, coverage_auc, useless_poses
-from lrnbv_drake.core.stats import compare_planners
+from lrnbv_drake.core.evaluation import objects
+from lrnbv_drake.core.evaluation.metrics import (
+    BoxMetrics,
+    EpisodeMetrics,
+    coverage_auc,
+    useless_poses,
+)
+from lrnbv_drake.core.evaluation.stats import compare_planners
 from lrnbv_drake.experiments.campaign.figures import (
     FIG3_PANELS,
     plot_campaign,

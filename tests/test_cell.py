@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.poses import look_at
-from lrnbv_drake.core.sensor import STATUS_VALID
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.robot.poses import look_at
+from lrnbv_drake.core.sensing.sensor import STATUS_VALID
 from lrnbv_drake.station.cell import make_cell
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.scenario import Scenario, ScenarioError

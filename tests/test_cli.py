@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 from lrnbv_drake.cli.main import main
-from lrnbv_drake.core import objects
-from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.evaluation import objects
+from lrnbv_drake.core.sensing.sensor import ToFFrame, ZoneGeometry
 from lrnbv_drake.station.cell_models import place_object
 from lrnbv_drake.station.scenario import Scenario
 

@@ -15,8 +15,8 @@ from lrnbv_drake.core.estimation.fit import Problem
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.params import EstimationParams
 from lrnbv_drake.core.estimation.shape import Shape
-from lrnbv_drake.core.sensor import SensorModelParams
-from lrnbv_drake.core.tof_device import DeviceBehaviour
+from lrnbv_drake.core.sensing.sensor import SensorModelParams
+from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 from lrnbv_drake.station.parts import sensor_behaviour
 from lrnbv_drake.station.scenario import load_scenario
 

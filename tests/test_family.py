@@ -1,5 +1,5 @@
-"""The generated family of objects (core/object_family.py) and a user's awkward meshes: sharp,
-thin and open ones run an episode, a flat one is refused naming the file."""
+"""The generated family of objects (core/evaluation/object_family.py) and a user's awkward
+meshes: sharp, thin and open ones run an episode, a flat one is refused naming the file."""
 
 import numpy as np
 import pytest
@@ -7,7 +7,7 @@ import shapely
 import trimesh
 
 from lrnbv_drake.cli.main import main
-from lrnbv_drake.core import object_family, objects
+from lrnbv_drake.core.evaluation import object_family, objects
 from lrnbv_drake.experiments.campaign.plan import FAMILY_PLACEMENT, resolve_objects
 
 #: The classes the family must hold (issue: boxes to blobs).

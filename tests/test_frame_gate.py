@@ -1,9 +1,9 @@
-"""The frame gate alone (core.frame_gate): worked timings, no Drake."""
+"""The frame gate alone (core.sensing.frame_gate): worked timings, no Drake."""
 
 import numpy as np
 
-from lrnbv_drake.core.frame_gate import FrameGate
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.sensing.frame_gate import FrameGate
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 
 STILL, MOVING = np.zeros(6), np.r_[0.0, 0.5, 0, 0, 0, 0]
 dut = FrameGate(latency=0.1, still_speed=0.01, timeout=1.0, first_timeout=3.0)

@@ -33,7 +33,7 @@ from ur_emulator.sessions import (
 )
 
 from lrnbv_drake.cli.main import main
-from lrnbv_drake.core.robot_safety import RobotFault
+from lrnbv_drake.core.robot.safety import RobotFault
 from lrnbv_drake.drivers.rtde_robot import RtdeRobot
 from lrnbv_drake.station.hardware_config import HardwareConfig
 

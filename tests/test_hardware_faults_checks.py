@@ -1,4 +1,4 @@
-"""The status and command checks alone (core/robot_safety.py): what a controller reading
+"""The status and command checks alone (core/robot/safety.py): what a controller reading
 means and which fault it is, with what to do; and what a joint command must satisfy (the
 controller's joint limits, the caps, the servo's lag, the workspace)."""
 
@@ -12,8 +12,8 @@ from fake_rtde import PERIOD, ok_status, open_limits
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.robot_safety import Ur5eStatus, read_status, tcp_pose_error
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.robot.safety import Ur5eStatus, read_status, tcp_pose_error
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
 from lrnbv_drake.station.motion import trapezoidal_trajectory
 

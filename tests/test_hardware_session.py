@@ -19,11 +19,11 @@ import pytest
 from pydrake.common.yaml import yaml_dump_typed
 
 from lrnbv_drake.cli.main import main
-from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.mapping.occupancy_map import OccupancyMap
 from lrnbv_drake.core.planning.heu import heu_poses
-from lrnbv_drake.core.robot_safety import RobotFault
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.robot.safety import RobotFault
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.drivers.rtde_robot import RtdeRobot
 from lrnbv_drake.drivers.tof_serial import SensorError, SensorTimeout, ToFSerialReader
 from lrnbv_drake.experiments import episode, session, session_preflight

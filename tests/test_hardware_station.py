@@ -12,9 +12,9 @@ import pytest
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import Simulator
 
-from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.sensor import ToFFrame
-from lrnbv_drake.core.tof_protocol import MAX_LINE_BYTES
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.sensing.sensor import ToFFrame
+from lrnbv_drake.core.sensing.tof_protocol import MAX_LINE_BYTES
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
 from lrnbv_drake.drivers.tof_serial import SensorTimeout, ToFSerialReader
 from lrnbv_drake.station.cell import make_cell

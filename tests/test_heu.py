@@ -7,8 +7,8 @@ from lrnbv_drake.core.acquisition import Acquisition
 from lrnbv_drake.core.planning.config import HeuParams
 from lrnbv_drake.core.planning.heu import HeuPolicy, heu_poses
 from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation
-from lrnbv_drake.core.poses import look_at
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.robot.poses import look_at
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.station.cell_models import place_object
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import make_policy

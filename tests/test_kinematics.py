@@ -12,7 +12,7 @@ import pytest
 from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
 
-from lrnbv_drake.core import kinematics as kin
+from lrnbv_drake.core.robot import kinematics as kin
 from lrnbv_drake.station.resources import MODELS_DIR, make_parser, package_url
 
 

@@ -12,7 +12,7 @@ import pytest
 from pyoctomap import OcTree
 
 from lrnbv_drake.core.mapping import KEY_OFFSET, OccupancyMap, OccupancyUpdate, frame_scan, logodds
-from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import ToFFrame, ZoneGeometry
 
 RES = 0.01
 # Notes 4.6: reference scenarios are 8x8 zone clouds from this origin.

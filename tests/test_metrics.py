@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from lrnbv_drake.core.boxes import OrientedBox
-from lrnbv_drake.core.metrics import (
+from lrnbv_drake.core.evaluation.metrics import (
     box_metrics,
     coverage_auc,
     coverage_curve,

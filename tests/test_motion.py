@@ -5,9 +5,9 @@ import logging
 import numpy as np
 import pytest
 
-from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.motion import MotionFailure
-from lrnbv_drake.core.poses import look_at
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.robot.motion import MotionFailure
+from lrnbv_drake.core.robot.poses import look_at
 from lrnbv_drake.station.motion import MotionPlanner, trapezoidal_trajectory
 from lrnbv_drake.station.scenario import Scenario
 

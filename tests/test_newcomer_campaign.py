@@ -11,7 +11,12 @@ import json
 import numpy as np
 import pytest
 
-from lrnbv_drake.core.metrics import BoxMetrics, EpisodeMetrics, coverage_auc, useless_poses
+from lrnbv_drake.core.evaluation.metrics import (
+    BoxMetrics,
+    EpisodeMetrics,
+    coverage_auc,
+    useless_poses,
+)
 from lrnbv_drake.experiments.campaign.plan import CampaignConfig, CampaignError, CampaignObject
 from lrnbv_drake.experiments.campaign.run import CampaignInterrupted, run_campaign
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import trimesh
 
-from lrnbv_drake.core import objects
+from lrnbv_drake.core.evaluation import objects
 from lrnbv_drake.station.scenario import Scenario, ScenarioError, load_scenario
 from lrnbv_drake.station.scenario_checks import (
     BASE_CLEARANCE,

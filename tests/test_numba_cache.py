@@ -56,9 +56,9 @@ def test_a_kernel_sees_an_edit_of_the_kernel_it_calls_in_another_file(tmp_path):
 DEVICE = textwrap.dedent("""\
     import sys
     import numpy as np
-    from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams
-    from lrnbv_drake.core.mixed_zone_calibration import edge_scene_depths
-    from lrnbv_drake.core.tof_device import DeviceBehaviour, device_readings
+    from lrnbv_drake.core.sensing.sensor import NoiseModel, SensorModelParams
+    from lrnbv_drake.core.calibration.mixed_zone import edge_scene_depths
+    from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour, device_readings
     p = SensorModelParams(noise=NoiseModel(0, 0))
     d = edge_scene_depths(p.geometry, 8, 0.0, 400.0, 700.0)
     for order, merge in [("closest", 0.0), ("strongest", 600.0)][:int(sys.argv[1])]:

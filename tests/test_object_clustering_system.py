@@ -5,7 +5,7 @@ import pytest
 from pydrake.systems.framework import DiagramBuilder
 
 from lrnbv_drake.core.boxes import AlignedBox
-from lrnbv_drake.core.perception import ExtractionParams, ExtractionStatus
+from lrnbv_drake.core.mapping.extraction import ExtractionParams, ExtractionStatus
 from lrnbv_drake.systems.object_clustering import ObjectClustering
 
 RES = 0.01

@@ -33,7 +33,7 @@ from pydrake.multibody.parsing import (
 )
 from pydrake.multibody.plant import MultibodyPlant
 
-from lrnbv_drake.core import objects
+from lrnbv_drake.core.evaluation import objects
 from lrnbv_drake.station.resources import MODELS_DIR, make_parser
 
 OBJECTS_DIR = MODELS_DIR / "objects"

@@ -9,7 +9,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
 from lrnbv_drake.core.mapping import OccupancyMap
-from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import ToFFrame, ZoneGeometry
 from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
 
 BOUNDS = ((-0.6, -0.6, -0.1), (0.6, 0.6, 0.9))

@@ -1,4 +1,4 @@
-"""The packing decision (core/packing.py, and its margin in experiments/report.py) on
+"""The packing decision (core/evaluation/packing.py, and its margin in experiments/report.py) on
 hand-worked cases."""
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation.estimator import BoxEstimate
-from lrnbv_drake.core.packing import (
+from lrnbv_drake.core.evaluation.packing import (
     CatalogueError,
     Container,
     choose_container,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lrnbv_drake.core.boxes import AlignedBox, OrientedBox
-from lrnbv_drake.core.perception import (
+from lrnbv_drake.core.mapping.extraction import (
     LABEL_NOISE,
     LABEL_OUTSIDE,
     LABEL_TABLE,

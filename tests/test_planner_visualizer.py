@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from pydrake.geometry import Meshcat, MeshcatParams
 
-from lrnbv_drake.core.perception import ExtractionParams, extract_object
+from lrnbv_drake.core.mapping.extraction import ExtractionParams, extract_object
 from lrnbv_drake.systems.planner_visualizer import PlannerVisualizer, box_edges
 
 

@@ -5,7 +5,7 @@ import pytest
 
 from lrnbv_drake.core.acquisition import Acquisition
 from lrnbv_drake.core.boxes import AlignedBox
-from lrnbv_drake.core.perception import ExtractionResult, ExtractionStatus
+from lrnbv_drake.core.mapping.extraction import ExtractionResult, ExtractionStatus
 from lrnbv_drake.core.planning.config import GainParams, PlannerParams, UtilityWeights
 from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy, _Cached, cache_capacity
 from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation
@@ -17,8 +17,8 @@ from lrnbv_drake.core.planning.utility import (
     evaluate_gains,
     make_snapshot,
 )
-from lrnbv_drake.core.poses import look_at
-from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.robot.poses import look_at
+from lrnbv_drake.core.sensing.sensor import ToFFrame, ZoneGeometry
 
 RES = 0.01
 CELL = RES**3

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lrnbv_drake.core.sensor import ToFFrame
-from lrnbv_drake.core.tof_protocol import encode_frame
+from lrnbv_drake.core.sensing.sensor import ToFFrame
+from lrnbv_drake.core.sensing.tof_protocol import encode_frame
 from lrnbv_drake.experiments import recording
 from lrnbv_drake.experiments.recording import (
     frames_to_arrays,

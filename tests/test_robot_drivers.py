@@ -17,8 +17,8 @@ import pytest
 from fake_rtde import PERIOD, ok_status, open_limits
 from pydrake.systems.analysis import Simulator
 
-from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.robot_safety import (
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.robot.safety import (
     RobotConnectionError,
     RobotFault,
     Ur5eStatus,

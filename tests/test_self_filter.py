@@ -1,12 +1,12 @@
-"""The self filter (core/self_filter.py) on hand-built frames, and the robot's geometry it asks
-(`MotionPlanner.near_robot`) against the analytic kinematics."""
+"""The self filter (core/robot/self_filter.py) on hand-built frames, and the robot's geometry it
+asks (`MotionPlanner.near_robot`) against the analytic kinematics."""
 
 import numpy as np
 
-from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.poses import look_at
-from lrnbv_drake.core.self_filter import STATUS_ROBOT, drop_robot_zones, robot_zones
-from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.robot.poses import look_at
+from lrnbv_drake.core.robot.self_filter import STATUS_ROBOT, drop_robot_zones, robot_zones
+from lrnbv_drake.core.sensing.sensor import ToFFrame, ZoneGeometry
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.scenario import Scenario
 

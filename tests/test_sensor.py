@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from lrnbv_drake.core.sensor import (
+from lrnbv_drake.core.sensing.sensor import (
     STATUS_NO_TARGET,
     STATUS_VALID,
     NoiseModel,

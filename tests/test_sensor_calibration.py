@@ -1,7 +1,7 @@
-"""Calibrating the sensor model (`core/sensor_calibration.py`, `core/mixed_zone_calibration.py`)
-on synthetic recordings of known devices, Drake-free: frames come from `device_readings` on
-zone sub-samples worked out from each scene's geometry, sampled finer (12 x 12 per zone) than
-the model samples (8 x 8).
+"""Calibrating the sensor model (`core/calibration/sensor_model.py`,
+`core/calibration/mixed_zone.py`) on synthetic recordings of known devices, Drake-free: frames
+come from `device_readings` on zone sub-samples worked out from each scene's geometry, sampled
+finer (12 x 12 per zone) than the model samples (8 x 8).
 Targets (issue 15): zone directions within 0.3 deg, noise law within 20 %, the mixed-zone rule
 on at least 90 % of the zones the edge crosses."""
 
@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from lrnbv_drake.core.mixed_zone_calibration import (
+from lrnbv_drake.core.calibration.mixed_zone import (
     FAR,
     MERGED,
     NEAR,
@@ -23,7 +23,14 @@ from lrnbv_drake.core.mixed_zone_calibration import (
     edge_steps,
     fit_mixed_zone_rule,
 )
-from lrnbv_drake.core.sensor import (
+from lrnbv_drake.core.calibration.sensor_model import (
+    fit_noise_model,
+    fit_zone_directions,
+    target_hits,
+    target_raster,
+    zone_noise,
+)
+from lrnbv_drake.core.sensing.sensor import (
     STATUS_NO_TARGET,
     STATUS_VALID,
     NoiseModel,
@@ -31,14 +38,7 @@ from lrnbv_drake.core.sensor import (
     ZoneGeometry,
     frame_rng,
 )
-from lrnbv_drake.core.sensor_calibration import (
-    fit_noise_model,
-    fit_zone_directions,
-    target_hits,
-    target_raster,
-    zone_noise,
-)
-from lrnbv_drake.core.tof_device import (
+from lrnbv_drake.core.sensing.tof_device import (
     STATUS_BLURRED,
     STATUS_MERGED,
     DeviceBehaviour,
@@ -48,7 +48,7 @@ from lrnbv_drake.core.tof_device import (
     illumination_weight,
 )
 
-#: The datasheet device's reduction (core/tof_device.py PROFILES) without its start-up
+#: The datasheet device's reduction (core/sensing/tof_device.py PROFILES) without its start-up
 #: statuses and reported-sigma spread, which the calibration does not read.
 DATASHEET = DeviceBehaviour(target_order="strongest", merge_mm=600.0, merged_depth="signal",
                             sharpener_bleed=0.02, illumination=True, accuracy="datasheet")

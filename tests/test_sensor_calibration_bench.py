@@ -14,8 +14,12 @@ import numpy as np
 import pytest
 
 from lrnbv_drake.cli.main import main
-from lrnbv_drake.core.sensor import ZoneGeometry
-from lrnbv_drake.core.tof_device import corner_share, datasheet_sigma_mm, st_zone_centres_deg
+from lrnbv_drake.core.sensing.sensor import ZoneGeometry
+from lrnbv_drake.core.sensing.tof_device import (
+    corner_share,
+    datasheet_sigma_mm,
+    st_zone_centres_deg,
+)
 from lrnbv_drake.experiments.recording import write_npz_atomically
 from lrnbv_drake.experiments.sensor_recording import (
     characterize,

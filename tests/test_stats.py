@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from lrnbv_drake.core.stats import (
+from lrnbv_drake.core.evaluation.stats import (
     compare_planners,
     group_summaries,
     mann_whitney,

@@ -1,4 +1,4 @@
-"""The datasheet device (`core/tof_device.py`): each knob alone on a hand-built zone, the
+"""The datasheet device (`core/sensing/tof_device.py`): each knob alone on a hand-built zone, the
 datasheet's noise and detection limit worked by hand, ST's zone table, and a frame that
 integrates a moving sensor. The ideal profile is `zone_readings` itself (and the closed loop's
 frames are unchanged: tests/test_tof_sensor_system.py, tests/test_scenario.py)."""
@@ -16,7 +16,7 @@ from pydrake.multibody.tree import PrismaticJoint, SpatialInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from lrnbv_drake.core.sensor import (
+from lrnbv_drake.core.sensing.sensor import (
     STATUS_NO_TARGET,
     STATUS_VALID,
     NoiseModel,
@@ -25,7 +25,7 @@ from lrnbv_drake.core.sensor import (
     frame_rng,
     zone_readings,
 )
-from lrnbv_drake.core.tof_device import (
+from lrnbv_drake.core.sensing.tof_device import (
     PROFILES,
     SIGNAL_LIMIT_DARK,
     STATUS_BLURRED,

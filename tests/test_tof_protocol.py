@@ -15,8 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from lrnbv_drake.core.sensor import ToFFrame
-from lrnbv_drake.core.tof_protocol import (
+from lrnbv_drake.core.sensing.sensor import ToFFrame
+from lrnbv_drake.core.sensing.tof_protocol import (
     MAX_LINE_BYTES,
     CrcError,
     FieldCountError,

@@ -13,7 +13,7 @@ from pydrake.multibody.tree import SpatialInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from lrnbv_drake.core.sensor import (
+from lrnbv_drake.core.sensing.sensor import (
     STATUS_NO_TARGET,
     STATUS_VALID,
     NoiseModel,
@@ -21,7 +21,7 @@ from lrnbv_drake.core.sensor import (
     ToFFrame,
     ZoneGeometry,
 )
-from lrnbv_drake.core.tof_device import STATUS_NO_WRAP_CHECK, DeviceBehaviour
+from lrnbv_drake.core.sensing.tof_device import STATUS_NO_WRAP_CHECK, DeviceBehaviour
 from lrnbv_drake.systems.tof_sensor import (
     ToFSensor,
     add_tof_renderer,

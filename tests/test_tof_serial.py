@@ -18,9 +18,9 @@ import pytest
 from pydrake.systems.analysis import Simulator
 
 from lrnbv_drake.cli.main import main
-from lrnbv_drake.core.sensor import NoiseModel, ToFFrame
-from lrnbv_drake.core.sensor_calibration import fit_noise_model
-from lrnbv_drake.core.tof_protocol import encode_frame
+from lrnbv_drake.core.calibration.sensor_model import fit_noise_model
+from lrnbv_drake.core.sensing.sensor import NoiseModel, ToFFrame
+from lrnbv_drake.core.sensing.tof_protocol import encode_frame
 from lrnbv_drake.drivers.tof_serial import (
     SensorError,
     SensorTimeout,

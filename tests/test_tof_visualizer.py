@@ -5,7 +5,7 @@ import pytest
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.math import RigidTransform, RollPitchYaw
 
-from lrnbv_drake.core.sensor import STATUS_NO_TARGET, ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import STATUS_NO_TARGET, ToFFrame, ZoneGeometry
 from lrnbv_drake.systems.tof_visualizer import ToFVisualizer, zone_rays
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir, remove_if_empty
 from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
-from lrnbv_drake.core.robot_safety import RobotConnectionError, RobotFault
+from lrnbv_drake.core.robot.safety import RobotConnectionError, RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorError, check_port_exists
 from lrnbv_drake.experiments.episode import PLANNERS, make_meshcat
 from lrnbv_drake.experiments.session import SessionError, SessionResult, resume, run_session

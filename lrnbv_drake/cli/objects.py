@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from lrnbv_drake.core import objects
+from lrnbv_drake.core.evaluation import objects
 
 
 def add_objects_command(subparsers: argparse._SubParsersAction) -> None:

@@ -10,7 +10,7 @@ from typing import Any
 from lrnbv_drake.cli.arg_types import seed
 from lrnbv_drake.cli.out_dir import prepare_out_dir
 from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
-from lrnbv_drake.core import objects
+from lrnbv_drake.core.evaluation import objects
 from lrnbv_drake.experiments.episode import PLANNERS, make_meshcat, run_episode
 from lrnbv_drake.station.parts import check_scenario_files
 from lrnbv_drake.station.scenario import Scenario

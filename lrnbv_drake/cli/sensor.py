@@ -25,8 +25,8 @@ import sys
 from pathlib import Path
 
 from lrnbv_drake.cli.arg_types import spread_count
-from lrnbv_drake.core.mixed_zone_calibration import MixedZoneFit
-from lrnbv_drake.core.sensor import STATUS_NO_TARGET, ToFFrame
+from lrnbv_drake.core.calibration.mixed_zone import MixedZoneFit
+from lrnbv_drake.core.sensing.sensor import STATUS_NO_TARGET, ToFFrame
 from lrnbv_drake.drivers.tof_serial import SensorError, SerialStats
 from lrnbv_drake.experiments.sensor_recording import (
     RECORDING_FILES,

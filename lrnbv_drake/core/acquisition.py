@@ -30,14 +30,14 @@ from typing import Any, Protocol
 import numpy as np
 
 from lrnbv_drake.core.estimation.track import EstimateTrack
-from lrnbv_drake.core.motion import MotionPlanning, Trajectory
 from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation, ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop
-from lrnbv_drake.core.self_filter import dropped_zones_info
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.robot.motion import MotionPlanning, Trajectory
+from lrnbv_drake.core.robot.self_filter import dropped_zones_info
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 
 #: (frame, X_WS, q) -> (the frame without the zones that read the robot itself, their
-#: (res, res) mask in raw order): core/self_filter.py's `drop_robot_zones` at joints q.
+#: (res, res) mask in raw order): core/robot/self_filter.py's `drop_robot_zones` at joints q.
 SelfFilter = Callable[[ToFFrame, np.ndarray, np.ndarray], tuple[ToFFrame, np.ndarray]]
 
 #: A motion starts from the last command, not from the measured joints, when no joint is

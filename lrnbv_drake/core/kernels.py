@@ -6,8 +6,8 @@ planning iteration). `make` runs `python -m lrnbv_drake.core.kernels` after inst
 
 from __future__ import annotations
 
-from lrnbv_drake.core import kinematics, poses
 from lrnbv_drake.core.estimation import track
+from lrnbv_drake.core.robot import kinematics, poses
 
 
 def compile_kernels() -> None:

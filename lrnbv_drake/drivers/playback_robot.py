@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from lrnbv_drake.core.robot_safety import ROBOT_MODE_RUNNING, RobotReading, tcp_pose_from_q
+from lrnbv_drake.core.robot.safety import ROBOT_MODE_RUNNING, RobotReading, tcp_pose_from_q
 
 
 class PlaybackRobot:

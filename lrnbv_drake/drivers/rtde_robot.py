@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from lrnbv_drake.core.robot_safety import RobotConnectionError, RobotFault, RobotReading
+from lrnbv_drake.core.robot.safety import RobotConnectionError, RobotFault, RobotReading
 
 #: Longest waits for the client, seconds. Connecting uploads a 42 kB script and checks the
 #: dashboard; a reading or a servoJ answers in well under a millisecond on a live link (its

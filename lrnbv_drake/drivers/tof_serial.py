@@ -1,4 +1,4 @@
-"""The real VL53L8CX: a serial driver that reads `$TOF` lines (core/tof_protocol.py) in a
+"""The real VL53L8CX: a serial driver that reads `$TOF` lines (core/sensing/tof_protocol.py) in a
 background thread. The `ToFSerialReceiver` system puts its frames on the diagram's `tof_frame`
 port.
 
@@ -22,8 +22,8 @@ from types import TracebackType
 import serial
 from serial.tools import list_ports
 
-from lrnbv_drake.core.sensor import ToFFrame
-from lrnbv_drake.core.tof_protocol import (
+from lrnbv_drake.core.sensing.sensor import ToFFrame
+from lrnbv_drake.core.sensing.tof_protocol import (
     FieldCountError,
     FieldValueError,
     FrameAssembler,

@@ -34,7 +34,7 @@ from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
-from lrnbv_drake.core.robot_safety import RobotFault
+from lrnbv_drake.core.robot.safety import RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorError
 from lrnbv_drake.experiments.recording import save_frames, write_atomically
 from lrnbv_drake.experiments.report import (

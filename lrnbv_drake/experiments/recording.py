@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from lrnbv_drake.core.acquisition import Acquisition
-from lrnbv_drake.core.sensor import ToFFrame
-from lrnbv_drake.core.tof_protocol import FrameAssembler
+from lrnbv_drake.core.sensing.sensor import ToFFrame
+from lrnbv_drake.core.sensing.tof_protocol import FrameAssembler
 from lrnbv_drake.experiments.report import json_default
 
 _log = logging.getLogger(__name__)

@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
-from lrnbv_drake.core.perception import extract_object
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.mapping.extraction import extract_object
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.experiments.recording import frames_from_arrays, load_recording
 from lrnbv_drake.experiments.report import (
     against_truth,

@@ -11,14 +11,14 @@ from typing import Any
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
 
-from lrnbv_drake.core import metrics
 from lrnbv_drake.core.acquisition import EpisodeLog, cycle_time
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation.estimator import BoxEstimate
 from lrnbv_drake.core.estimation.track import EstimateTrack
-from lrnbv_drake.core.objects import PlacedObject, sample_surface
-from lrnbv_drake.core.packing import PackingDecision, choose_container, packing_metrics
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.evaluation import metrics
+from lrnbv_drake.core.evaluation.objects import PlacedObject, sample_surface
+from lrnbv_drake.core.evaluation.packing import PackingDecision, choose_container, packing_metrics
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.station.parts import container_catalogue, episode_estimator
 from lrnbv_drake.station.scenario import Scenario
 

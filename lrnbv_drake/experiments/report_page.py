@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 
 from lrnbv_drake.core.acquisition import Acquisition
 from lrnbv_drake.core.boxes import OrientedBox
-from lrnbv_drake.core.sensor import ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import ZoneGeometry
 
 #: The page's sections, in order (tests check each is present).
 SECTIONS = ("Box", "Dimensions", "Container", "Progress", "Cycle time", "Replay")

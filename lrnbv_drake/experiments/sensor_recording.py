@@ -24,9 +24,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from lrnbv_drake.core.mixed_zone_calibration import MixedZoneFit, edge_steps, fit_mixed_zone_rule
-from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame, ZoneGeometry
-from lrnbv_drake.core.sensor_calibration import (
+from lrnbv_drake.core.calibration.mixed_zone import MixedZoneFit, edge_steps, fit_mixed_zone_rule
+from lrnbv_drake.core.calibration.sensor_model import (
     NoiseFit,
     ZoneDirectionFit,
     ZoneNoise,
@@ -37,7 +36,8 @@ from lrnbv_drake.core.sensor_calibration import (
     target_raster,
     zone_noise,
 )
-from lrnbv_drake.core.tof_protocol import encode_frame
+from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.tof_protocol import encode_frame
 from lrnbv_drake.drivers.tof_serial import (
     SensorTimeout,
     SerialStats,

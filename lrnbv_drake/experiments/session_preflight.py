@@ -7,7 +7,7 @@ import logging
 
 import numpy as np
 
-from lrnbv_drake.core.robot_safety import Ur5eStatus, read_status, tcp_pose_error
+from lrnbv_drake.core.robot.safety import Ur5eStatus, read_status, tcp_pose_error
 from lrnbv_drake.drivers.rtde_robot import RtdeRobot
 from lrnbv_drake.drivers.tof_serial import ToFSerialReader, check_resolution
 from lrnbv_drake.station.motion import MotionPlanner

@@ -26,7 +26,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.station.parts import device_params, device_profile
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer

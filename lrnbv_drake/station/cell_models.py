@@ -27,8 +27,8 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.lcm import ApplyLcmBusConfig
 from pydrake.visualization import ApplyVisualizationConfig
 
-from lrnbv_drake.core import objects
-from lrnbv_drake.core.robot_safety import RobotInterface
+from lrnbv_drake.core.evaluation import objects
+from lrnbv_drake.core.robot.safety import RobotInterface
 from lrnbv_drake.drivers.tof_serial import ToFSerialReader
 from lrnbv_drake.station.resources import make_parser, resolve_url
 from lrnbv_drake.station.scenario import Scenario, ScenarioError

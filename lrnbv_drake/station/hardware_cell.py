@@ -29,8 +29,8 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.robot_safety import RobotInterface
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.robot.safety import RobotInterface
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
 from lrnbv_drake.drivers.rtde_robot import RtdeRobot
 from lrnbv_drake.drivers.tof_serial import ToFSerialReader

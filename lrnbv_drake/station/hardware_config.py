@@ -11,7 +11,7 @@ the ones docs/hardware.md argues for; a scenario file overrides them like any ot
 # postponed annotations would turn into strings.
 import dataclasses as dc
 
-from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.robot import kinematics
 
 #: The robot drivers `HardwareConfig.robot_driver` names.
 ROBOT_DRIVERS = ("rtde", "playback")

@@ -24,10 +24,10 @@ import numpy as np
 from pydrake.planning import SceneGraphCollisionChecker
 from pydrake.trajectories import PiecewisePolynomial
 
-from lrnbv_drake.core import kinematics
-from lrnbv_drake.core.motion import MotionFailure, MotionPlan
-from lrnbv_drake.core.poses import look_at
-from lrnbv_drake.core.sensor import ROLL_STEPS_DEG, ROLL_STEPS_TEXT
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.robot.motion import MotionFailure, MotionPlan
+from lrnbv_drake.core.robot.poses import look_at
+from lrnbv_drake.core.sensing.sensor import ROLL_STEPS_DEG, ROLL_STEPS_TEXT
 from lrnbv_drake.station.cell_models import add_cell_models, fixed_pose
 from lrnbv_drake.station.resources import make_robot_diagram_builder
 from lrnbv_drake.station.scenario import Scenario
@@ -165,7 +165,7 @@ class MotionPlanner:
 
     def near_robot(self, q: np.ndarray, points: np.ndarray, padding: float) -> np.ndarray:
         """(n,) bool: which world points (n, 3) lie within `padding` of the arm's collision
-        geometry (or inside it) at joints q: readings of the arm itself (core/self_filter.py).
+        geometry (or inside it) at joints q: readings of the arm itself (core/robot/self_filter.py).
         Not safe to call from two threads at once (one context)."""
         plant, scene_graph = self._model.plant(), self._model.scene_graph()
         plant.SetPositions(plant.GetMyMutableContextFromRoot(self._context), np.asarray(q, float))

@@ -9,22 +9,22 @@ from pathlib import Path
 
 import numpy as np
 
-from lrnbv_drake.core import kinematics
 from lrnbv_drake.core.acquisition import SelfFilter
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.estimation.estimator import ShapeEstimator
 from lrnbv_drake.core.estimation.track import EpisodeEstimator
-from lrnbv_drake.core.objects import PlacedObject
-from lrnbv_drake.core.packing import CatalogueError, Container, load_catalogue
-from lrnbv_drake.core.perception import ExtractionParams
+from lrnbv_drake.core.evaluation.objects import PlacedObject
+from lrnbv_drake.core.evaluation.packing import CatalogueError, Container, load_catalogue
+from lrnbv_drake.core.mapping.extraction import ExtractionParams
 from lrnbv_drake.core.planning.heu import HeuPolicy
 from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop
-from lrnbv_drake.core.robot_safety import SafetyLimits
-from lrnbv_drake.core.self_filter import drop_robot_zones
-from lrnbv_drake.core.sensor import NoiseModel, SensorModelParams, ToFFrame, ZoneGeometry
-from lrnbv_drake.core.tof_device import (
+from lrnbv_drake.core.robot import kinematics
+from lrnbv_drake.core.robot.safety import SafetyLimits
+from lrnbv_drake.core.robot.self_filter import drop_robot_zones
+from lrnbv_drake.core.sensing.sensor import NoiseModel, SensorModelParams, ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.tof_device import (
     PROFILES,
     DeviceBehaviour,
     DeviceProfile,

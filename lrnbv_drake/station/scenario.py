@@ -17,8 +17,8 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.visualization import VisualizationConfig
 
 from lrnbv_drake.core.estimation.params import EstimationParams
-from lrnbv_drake.core.kinematics import HOME
 from lrnbv_drake.core.planning.config import HeuParams, PlannerParams
+from lrnbv_drake.core.robot.kinematics import HOME
 from lrnbv_drake.station.hardware_config import HardwareConfig
 from lrnbv_drake.station.resources import package_url
 from lrnbv_drake.station.scenario_checks import (
@@ -46,7 +46,7 @@ class RobotConfig:
     # Clearance kept between the robot (with the sensor mount) and the table or object, metres.
     collision_padding: float = 0.01
     # A reading within this of the robot's own collision geometry at capture is the arm seen
-    # by its sensor, not the scene: its zone is dropped (status 254, core/self_filter.py),
+    # by its sensor, not the scene: its zone is dropped (status 254, core/robot/self_filter.py),
     # metres; 0 keeps every reading.
     self_filter_padding: float = 0.03
     # The sensor may be rolled about its optical axis by a multiple of this, in degrees, when
@@ -188,7 +188,7 @@ class DeviceConfig:
 
 @dc.dataclass
 class PackingConfig:
-    """The packing decision after the episode (core/packing.py)."""
+    """The packing decision after the episode (core/evaluation/packing.py)."""
 
     # The container catalogue: a package URL or a file (models/containers/ has the default).
     containers: str = package_url("containers/shipping_boxes.yaml")
@@ -220,7 +220,7 @@ class MappingConfig:
 
 @dc.dataclass
 class ExtractionConfig:
-    """Finding the object among the occupied cells (perception.ExtractionParams)."""
+    """Finding the object among the occupied cells (extraction.ExtractionParams)."""
 
     # Cells below the table top plus this are the table, metres. Two cell layers: range noise
     # (sigma 5-7.5 mm at working range) lifts table points into the second layer, and those

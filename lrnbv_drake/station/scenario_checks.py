@@ -23,11 +23,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import trimesh
 
-from lrnbv_drake.core import objects
-from lrnbv_drake.core.sensor import ROLL_STEPS_DEG, ROLL_STEPS_TEXT
+from lrnbv_drake.core.evaluation import objects
+from lrnbv_drake.core.sensing.sensor import ROLL_STEPS_DEG, ROLL_STEPS_TEXT
+from lrnbv_drake.core.sensing.tof_device import (
+    ACCURACY_LAWS,
+    MERGED_DEPTHS,
+    PROFILES,
+    TARGET_ORDERS,
+)
+from lrnbv_drake.core.sensing.tof_protocol import RESOLUTIONS
 from lrnbv_drake.core.strict_yaml import load_yaml
-from lrnbv_drake.core.tof_device import ACCURACY_LAWS, MERGED_DEPTHS, PROFILES, TARGET_ORDERS
-from lrnbv_drake.core.tof_protocol import RESOLUTIONS
 
 if TYPE_CHECKING:  # scenario.py calls these checks while loading; only the type is needed
     from lrnbv_drake.station.scenario import Scenario

@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from lrnbv_drake.core.tof_protocol import encode_frame
+from lrnbv_drake.core.sensing.tof_protocol import encode_frame
 from lrnbv_drake.drivers.tof_serial import SensorError, ToFSerialReader
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.station.sim_cell import make_sim_cell

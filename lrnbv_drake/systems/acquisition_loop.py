@@ -22,10 +22,10 @@ from lrnbv_drake.core.acquisition import (
     SelfFilter,
 )
 from lrnbv_drake.core.estimation.track import EstimateTrack
-from lrnbv_drake.core.motion import MotionPlanning
 from lrnbv_drake.core.planning.policy import Observation, ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.robot.motion import MotionPlanning
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 
 
 class _PortInputs:

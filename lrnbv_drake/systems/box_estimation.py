@@ -8,7 +8,7 @@ from pydrake.systems.framework import Context, LeafSystem
 
 from lrnbv_drake.core.acquisition import EpisodeLog
 from lrnbv_drake.core.estimation.track import EpisodeEstimator, EstimateTrack
-from lrnbv_drake.core.perception import ExtractionResult
+from lrnbv_drake.core.mapping.extraction import ExtractionResult
 
 
 def _cell_box(extraction: ExtractionResult | None):

@@ -1,4 +1,4 @@
-"""`ObjectClustering`: the object extraction step (`perception.extract_object`) as a system."""
+"""`ObjectClustering`: the object extraction step (`extraction.extract_object`) as a system."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, LeafSystem
 
-from lrnbv_drake.core.perception import ExtractionParams, extract_object
+from lrnbv_drake.core.mapping.extraction import ExtractionParams, extract_object
 
 
 class ObjectClustering(LeafSystem):

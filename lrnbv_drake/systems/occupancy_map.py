@@ -21,7 +21,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import Context, EventStatus, LeafSystem, State
 
 from lrnbv_drake.core.mapping import BoundsLike, OccupancyMap, OccupancyUpdate
-from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import ToFFrame, ZoneGeometry
 
 
 @dc.dataclass

@@ -1,5 +1,5 @@
 """SensorPose: the sensor's pose in world from the arm's joint positions
-(`core.kinematics.sensor_pose`)."""
+(`core.robot.kinematics.sensor_pose`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import Context, LeafSystem
 
-from lrnbv_drake.core import kinematics
+from lrnbv_drake.core.robot import kinematics
 
 
 class SensorPose(LeafSystem):

@@ -1,5 +1,5 @@
 """`ToFFrameStamper`: the serial sensor's frames on the diagram's clock, without those the arm
-may have moved during; a thin wrapper of `core.frame_gate.FrameGate`."""
+may have moved during; a thin wrapper of `core.sensing.frame_gate.FrameGate`."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from collections.abc import Callable
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, LeafSystem, State
 
-from lrnbv_drake.core.frame_gate import FrameGate, GateState
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.sensing.frame_gate import FrameGate, GateState
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.drivers.tof_serial import SensorTimeout
 
 

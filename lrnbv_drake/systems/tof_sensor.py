@@ -2,7 +2,7 @@
 the device would report.
 
 The reduction (nearest sizeable surface per zone, noise, status) lives in the Drake-free
-`lrnbv_drake.core.sensor`; this module only produces its input, a (res, res, k, k) grid of
+`lrnbv_drake.core.sensing.sensor`; this module only produces its input, a (res, res, k, k) grid of
 perpendicular depths sampled evenly in angle over each zone's footprint, from one
 `QueryObject.RenderDepthImage` call (docs/sensor-model.md).
 
@@ -36,8 +36,12 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import Context, InputPort, LeafSystem, OutputPort, State
 from pydrake.systems.sensors import CameraInfo
 
-from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame, frame_rng
-from lrnbv_drake.core.tof_device import DeviceBehaviour, device_readings, illumination_weight
+from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame, frame_rng
+from lrnbv_drake.core.sensing.tof_device import (
+    DeviceBehaviour,
+    device_readings,
+    illumination_weight,
+)
 
 #: Near clipping plane and minimum depth, metres: geometry closer than 5 mm to the sensor is not
 #: rendered. The device's own 20 mm minimum is applied by the sensor model, not here.
@@ -167,7 +171,7 @@ class ToFSensor(LeafSystem):
             renderer_name: SceneGraph renderer to use.
             seed: noise seed, >= 0.
             period: capture period, seconds (1/15: 8x8 mode at its maximum rate).
-            behaviour: the device's departures from the model (`core.tof_device`); the
+            behaviour: the device's departures from the model (`core.sensing.tof_device`); the
                 default is the ideal device.
             reflectance: reflectance of the surface at world points (n, 3); 0.5 everywhere
                 if not given. Only a `behaviour` with `reflectance` uses it.

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, LeafSystem, OutputPort, State
 
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.drivers.tof_serial import ToFSerialReader, check_resolution
 
 

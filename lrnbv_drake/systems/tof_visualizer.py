@@ -15,7 +15,7 @@ from pydrake.math import RigidTransform
 from pydrake.perception import PointCloud
 from pydrake.systems.framework import LeafSystem
 
-from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import ToFFrame, ZoneGeometry
 from lrnbv_drake.systems.meshcat_steps import show_from
 
 VALID_RGBA = Rgba(0.1, 0.8, 0.2, 1.0)

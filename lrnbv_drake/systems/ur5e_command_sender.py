@@ -31,7 +31,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, DiscreteValues, LeafSystem
 
-from lrnbv_drake.core.robot_safety import (
+from lrnbv_drake.core.robot.safety import (
     RESUME_HINT,
     RobotFault,
     RobotInterface,

@@ -7,7 +7,7 @@ import contextlib
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, LeafSystem, State
 
-from lrnbv_drake.core.robot_safety import RobotInterface, Ur5eStatus, read_status
+from lrnbv_drake.core.robot.safety import RobotInterface, Ur5eStatus, read_status
 
 
 class Ur5eStatusReceiver(LeafSystem):

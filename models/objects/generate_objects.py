@@ -26,7 +26,7 @@ import shapely
 import trimesh
 from shapely.geometry import MultiPolygon, Polygon
 
-from lrnbv_drake.core.objects import export_obj
+from lrnbv_drake.core.evaluation.objects import export_obj
 
 HERE = Path(__file__).resolve().parent
 

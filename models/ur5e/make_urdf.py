@@ -1,7 +1,8 @@
 """Generates `ur5e.urdf` next to this file: `.venv/bin/python models/ur5e/make_urdf.py`.
 
-The kinematics and limits come from `lrnbv_drake.core.kinematics`, so the model and the analytic IK
-cannot drift apart (`tests/test_kinematics.py` checks the shipped file is this script's output).
+The kinematics and limits come from `lrnbv_drake.core.robot.kinematics`, so the model and the
+analytic IK cannot drift apart (`tests/test_kinematics.py` checks the shipped file is this
+script's output).
 
 - Frames and joint origins are those of the ROS2 `ur_description` (`urdf/ur_macro.xacro` with
   `config/ur5e/default_kinematics.yaml`), including the dummy `base_link_inertia` that carries
@@ -25,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrnbv_drake.core import kinematics as kin
+from lrnbv_drake.core.robot import kinematics as kin
 
 PI = np.pi
 DRAKE_NS = "http://drake.mit.edu"

@@ -39,8 +39,8 @@ NOTICED = 0.5
 def first_pose() -> tuple[float, ...]:
     """Joints at HEU's first viewpoint of the default scenario, where the sessions start, so
     that one motion remains (to the second pose)."""
-    from lrnbv_drake.core import kinematics
     from lrnbv_drake.core.planning.heu import heu_poses
+    from lrnbv_drake.core.robot import kinematics
     from lrnbv_drake.station.cell_models import place_object
     from lrnbv_drake.station.motion import MotionPlanner
     from lrnbv_drake.station.scenario import load_scenario

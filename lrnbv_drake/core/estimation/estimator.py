@@ -33,8 +33,8 @@ from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.interval import intervals
 from lrnbv_drake.core.estimation.params import EstimationParams
 from lrnbv_drake.core.estimation.shape import Shape, box_shape, part_of_box
-from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame
-from lrnbv_drake.core.tof_device import DeviceBehaviour
+from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
+from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 
 
 @dc.dataclass(frozen=True)

@@ -28,8 +28,13 @@ import math
 import numba
 import numpy as np
 
-from lrnbv_drake.core.sensor import SensorModelParams, ToFFrame, cluster_rule, sorted_cluster_median
-from lrnbv_drake.core.tof_device import MERGED_DEPTHS, DeviceBehaviour, sorted_target
+from lrnbv_drake.core.sensing.sensor import (
+    SensorModelParams,
+    ToFFrame,
+    cluster_rule,
+    sorted_cluster_median,
+)
+from lrnbv_drake.core.sensing.tof_device import MERGED_DEPTHS, DeviceBehaviour, sorted_target
 
 #: Numbers per part: centre x, y, yaw, length, width, height, rx, ry, rz.
 PART_SIZE = 9

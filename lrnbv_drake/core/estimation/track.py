@@ -17,7 +17,7 @@ import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 
 
 @dc.dataclass(frozen=True)
@@ -77,8 +77,8 @@ def compile_kernels() -> None:
     one frame of a flat table, so that the first estimate of a process (the first pose's,
     or the report after a fault on the cell) does not wait for them
     (`python -m lrnbv_drake.core.kernels`)."""
-    from lrnbv_drake.core.sensor import SensorModelParams
-    from lrnbv_drake.core.tof_device import DeviceBehaviour
+    from lrnbv_drake.core.sensing.sensor import SensorModelParams
+    from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 
     frame = ToFFrame(np.full((8, 8), 400), np.full((8, 8), 5), np.full((8, 8), 5))
     X_WS = np.diag([1.0, -1.0, -1.0, 1.0])

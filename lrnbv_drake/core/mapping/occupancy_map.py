@@ -32,7 +32,7 @@ from lrnbv_drake.core.mapping.query_kernels import (
     unknown_kernel,
 )
 from lrnbv_drake.core.mapping.scan import frame_scan
-from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import ToFFrame, ZoneGeometry
 
 
 class CellCounts(NamedTuple):

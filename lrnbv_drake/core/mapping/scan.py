@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lrnbv_drake.core.sensor import STATUS_NO_TARGET, ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import STATUS_NO_TARGET, ToFFrame, ZoneGeometry
 
 
 def frame_scan(frame: ToFFrame, geometry: ZoneGeometry, X_WS: np.ndarray, mode: str = "ray",

@@ -13,7 +13,7 @@ import numpy as np
 
 from lrnbv_drake.core.planning.config import HeuParams
 from lrnbv_drake.core.planning.policy import Observation, Proposal, Recorded, ViewpointPolicy
-from lrnbv_drake.core.poses import look_at
+from lrnbv_drake.core.robot.poses import look_at
 
 
 def heu_poses(target: np.ndarray, params: HeuParams) -> list[np.ndarray]:

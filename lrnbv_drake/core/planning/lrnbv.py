@@ -37,7 +37,7 @@ from lrnbv_drake.core.planning.utility import (
     make_snapshot,
     sensor_rays,
 )
-from lrnbv_drake.core.sensor import ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import ZoneGeometry
 
 
 @dc.dataclass

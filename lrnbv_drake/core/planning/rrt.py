@@ -17,7 +17,7 @@ import numpy as np
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.planning.config import TreeParams
 from lrnbv_drake.core.planning.utility import Gains
-from lrnbv_drake.core.poses import look_at_batch
+from lrnbv_drake.core.robot.poses import look_at_batch
 
 #: Scores a batch of poses (P, 4, 4): raw gains and utilities under the current normaliser.
 Scorer = Callable[[np.ndarray], tuple[Gains, np.ndarray]]

@@ -31,7 +31,7 @@ from scipy import ndimage
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.mapping import ray_box_interval, walk_start, walk_step
 from lrnbv_drake.core.planning.config import GainParams, UtilityWeights
-from lrnbv_drake.core.sensor import ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import ZoneGeometry
 
 #: Cell states in a snapshot, as `OccupancyMap.classify` returns them (0 is free).
 UNKNOWN, OCCUPIED = -1, 1

@@ -19,7 +19,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from lrnbv_drake.core.stats import finite
+from lrnbv_drake.core.evaluation.stats import finite
 
 PLANNER_LABELS = {"lrnbv": "LR-NBV", "nbv": "NBV", "heu": "HEU"}
 PLANNER_COLORS = {"lrnbv": "tab:blue", "nbv": "tab:orange", "heu": "tab:green"}

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
 
-from lrnbv_drake.core import objects
+from lrnbv_drake.core.evaluation import objects
 from lrnbv_drake.station.scenario import Scenario
 
 #: Where episodes run: local processes (or this one), or Ray tasks.

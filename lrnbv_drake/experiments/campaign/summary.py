@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from lrnbv_drake.core.metrics import coverage_auc
-from lrnbv_drake.core.stats import (
+from lrnbv_drake.core.evaluation.metrics import coverage_auc
+from lrnbv_drake.core.evaluation.stats import (
     ALPHA,
     Summary,
     compare_planners,

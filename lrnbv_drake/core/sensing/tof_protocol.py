@@ -19,7 +19,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 
 #: The only version this parser accepts.
 PROTOCOL_VERSION = 1

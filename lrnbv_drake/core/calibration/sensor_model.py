@@ -6,7 +6,7 @@
 - zone directions: a small target stepped across the field of view, each zone's centre the
   middle of the directions at which it reports the target.
 
-The mixed-zone rule's fit is `core.mixed_zone_calibration`.
+The mixed-zone rule's fit is `core.calibration.mixed_zone`.
 
 Numbers only, no files: `experiments.sensor_recording` loads the recordings and writes the fit.
 """
@@ -20,11 +20,11 @@ import numpy as np
 import scipy.sparse.csgraph
 import scipy.spatial
 
-from lrnbv_drake.core.sensor import (
+from lrnbv_drake.core.sensing.sensor import (
     STATUS_VALID,
     VALID_STATUSES,
 )
-from lrnbv_drake.core.tof_device import (
+from lrnbv_drake.core.sensing.tof_device import (
     STATUS_MERGED,
     STATUS_NEW_TARGET,
     STATUS_NO_WRAP_CHECK,

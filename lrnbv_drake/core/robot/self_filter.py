@@ -23,7 +23,7 @@ from collections.abc import Callable
 import numpy as np
 
 from lrnbv_drake.core.mapping.scan import frame_scan
-from lrnbv_drake.core.sensor import ToFFrame, ZoneGeometry
+from lrnbv_drake.core.sensing.sensor import ToFFrame, ZoneGeometry
 
 #: Status this package writes for a zone whose reading is the robot itself. Not one of ST's
 #: (theirs are 0-13 and 255): a recording shows which zones the filter took out.

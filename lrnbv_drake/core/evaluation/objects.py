@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from lrnbv_drake.core import object_family
+from lrnbv_drake.core.evaluation import object_family
 
-OBJECTS_DIR = Path(__file__).resolve().parents[2] / "models" / "objects"
+OBJECTS_DIR = Path(__file__).resolve().parents[3] / "models" / "objects"
 MESH_SUFFIXES: tuple[str, ...] = (".obj", ".stl", ".ply")
 #: Most surface samples `sample_surface` draws: 50 m^2 at the coverage metric's 5 mm spacing,
 #: over six times the surface of the largest box the cell maps. A mesh read in the wrong units

@@ -2,7 +2,7 @@
 swept across the field of view over a farther board, and the model's rule (target order,
 merge distance, merged depth, min_share) that predicts what the zones the edge crosses
 report. Numbers only, no files; the noise and the zone directions are
-`core.sensor_calibration`'s."""
+`core.calibration.sensor_model`'s."""
 
 from __future__ import annotations
 
@@ -11,14 +11,14 @@ import math
 
 import numpy as np
 
-from lrnbv_drake.core.sensor import (
+from lrnbv_drake.core.sensing.sensor import (
     STATUS_NO_TARGET,
     STATUS_VALID,
     NoiseModel,
     SensorModelParams,
     ZoneGeometry,
 )
-from lrnbv_drake.core.tof_device import (
+from lrnbv_drake.core.sensing.tof_device import (
     MERGED_DEPTHS,
     STATUS_MERGED,
     DeviceBehaviour,

@@ -1,9 +1,9 @@
 """The simulated VL53L8CX as ST documents it: targets by signal, merged returns, sharpener
 bleed, a non-uniform zone layout, the datasheet's accuracy, start-up statuses.
 
-The `ideal` profile is the reduction in `core.sensor` (nearest surface cluster holding a share
-of the zone, Gaussian noise, status 5): it stays the default and `device_readings` hands it
-to `zone_readings` unchanged, so its frames are bit for bit what they were. The `datasheet`
+The `ideal` profile is the reduction in `core.sensing.sensor` (nearest surface cluster holding a
+share of the zone, Gaussian noise, status 5): it stays the default and `device_readings` hands
+it to `zone_readings` unchanged, so its frames are bit for bit what they were. The `datasheet`
 profile follows ../shared/notes/vl53l8cx-behaviour.md (sections cited as "notes 2" etc.;
 docs/sensor-model.md, section 8, says which value comes from where):
 
@@ -36,7 +36,7 @@ import math
 import numba
 import numpy as np
 
-from lrnbv_drake.core.sensor import (
+from lrnbv_drake.core.sensing.sensor import (
     STATUS_NO_TARGET,
     STATUS_VALID,
     SensorModelParams,
@@ -121,7 +121,7 @@ class DeviceBehaviour:
 
     @property
     def ideal(self) -> bool:
-        """Whether this is the ideal device (`core.sensor.zone_readings` reproduces it)."""
+        """Whether this is the ideal device (`core.sensing.sensor.zone_readings` reproduces it)."""
         return self == DeviceBehaviour()
 
     def signal_limit(self) -> float:

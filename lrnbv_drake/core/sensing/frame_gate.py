@@ -15,7 +15,7 @@ import dataclasses as dc
 
 import numpy as np
 
-from lrnbv_drake.core.sensor import ToFFrame
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 
 
 @dc.dataclass(frozen=True)
