@@ -268,7 +268,7 @@ def summary_markdown(config: CampaignConfig, rows: Sequence[dict[str, Any]],
                   "carry no `metrics` (box, IoU, coverage, useless poses): those are n/a and "
                   "only poses and wall time are summarised."]
     lines.append("")
-    lines += _pooled_section(config, ok)
+    lines += pooled_section(config, ok)
     summaries = group_summaries(ok, [m.column for m in METRICS])
     empty = summarize([])
     for obj in object_labels:
@@ -284,7 +284,7 @@ def _share(rows: Sequence[dict[str, Any]], column: str) -> str:
     return "n/a" if len(values) == 0 else f"{np.mean(values):.2f} (n={len(values)})"
 
 
-def _pooled_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
+def pooled_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
     """Each planner over every object and trial: the worst-dimension error's median, 95th
     percentile and maximum, the shares of the truth inside the interval, of misfits flagged
     and of containers that fit and are the right size, the poses; and the U test of the

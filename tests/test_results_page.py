@@ -1,0 +1,91 @@
+"""`lrnbv results`: the campaigns docs/results.md cites, from committed manifests, written
+into the page between their markers; the same manifest on the same commit gives the same
+tables, also when run again from nothing."""
+
+import csv
+
+import pytest
+
+from lrnbv_drake.cli.main import main
+from lrnbv_drake.experiments.campaign.results_page import (
+    Manifest,
+    ManifestError,
+    load_manifest,
+    manifests,
+    splice,
+)
+
+
+def test_every_committed_manifest_loads_and_names_a_campaign_benchmark_accepts(tmp_path):
+    from lrnbv_drake.cli.benchmark import add_benchmark_command, config_from_args
+    from lrnbv_drake.cli.results import _from_repo
+
+    found = manifests()
+    assert {m.name for m in found} >= {"family", "paper", "paper_preset", "datasheet",
+                                        "off_model"}
+    parser = add_benchmark_command(__import__("argparse").ArgumentParser().add_subparsers())
+    for m in found:
+        config = config_from_args(parser.parse_args(
+            [*_from_repo(m.args), "--out", str(tmp_path / m.name)]))
+        assert config.trials >= 2 and config.objects
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("title: x\n", "exactly the keys 'title' and 'args'"),
+    ("title: x\nargs: --trials 2\nseeds: 3\n", "exactly the keys"),
+    ("title: x\nargs: --trials 2 --out elsewhere\n", "may not set ['--out']"),
+    ("title: ''\nargs: --trials 2\n", "non-empty text"),
+    ("title: x\ntitle: y\nargs: a\n", "expected each key once"),
+])
+def test_a_bad_manifest_is_refused_naming_the_file_and_what_was_expected(tmp_path, text,
+                                                                           expected):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ManifestError, match=r"bad\.yaml") as e:
+        load_manifest(path)
+    assert expected in str(e.value)
+
+
+def test_splice_replaces_only_the_block_between_its_markers_and_appends_a_new_one():
+    m = Manifest("a", "Campaign A", ("--trials", "2"))
+    page = "# Results\n\nprose before\n<!-- results: a -->\nold\n<!-- end results: a -->\nafter\n"
+    assert splice(page, m, "new\n") == page.replace("old\n", "new\n")
+    fresh = splice("# Results\n", m, "t\n")
+    assert fresh == ("# Results\n\n## Campaign A\n\n<!-- results: a -->\nt\n"
+                     "<!-- end results: a -->\n")
+    assert splice(fresh, m, "u\n") == fresh.replace("\nt\n", "\nu\n")
+    with pytest.raises(ManifestError, match="without the other"):
+        splice("<!-- results: a -->\n", m, "t\n")
+
+
+def test_results_runs_the_manifest_writes_its_tables_and_regenerates_them_identically(
+        tmp_path):
+    folder = tmp_path / "campaigns"
+    folder.mkdir()
+    (folder / "tiny.yaml").write_text(
+        "title: Tiny\nargs: --planners heu --objects horizontal_box --trials 1 --seed 3\n")
+    page = tmp_path / "results.md"
+    page.write_text("# Results\n\nHand-written prose.\n\n<!-- results: tiny -->\n"
+                    "<!-- end results: tiny -->\n\nMore prose.\n")
+    argv = ["results", "tiny", "--manifests", str(folder), "--out", str(tmp_path / "out"),
+            "--page", str(page), "--jobs", "1"]
+    assert main(argv) == 0
+    first = page.read_text()
+    assert first.startswith("# Results\n\nHand-written prose.\n\n<!-- results: tiny -->\n")
+    assert first.endswith("<!-- end results: tiny -->\n\nMore prose.\n")
+    with (tmp_path / "out" / "tiny" / "results.csv").open() as f:
+        (row,) = list(csv.DictReader(f))
+    # The per-object table's worst error and poses are the episode's, in millimetres.
+    line = next(s for s in first.splitlines() if s.startswith("| horizontal_box |"))
+    assert line.split(" | ")[1] == f"{1000 * float(row['worst_err']):.1f}"
+    assert line.rstrip(" |").split(" | ")[-1] == f"{float(row['n_poses']):g}"
+    assert "`lrnbv benchmark --planners heu --objects horizontal_box --trials 1 --seed 3`" in first
+    # Again: resumed, the same tables.
+    assert main(argv) == 0 and page.read_text() == first
+    # Begun on another commit: refused, then run again from nothing, the same tables.
+    stamp = tmp_path / "out" / "tiny" / "source.txt"
+    here = stamp.read_text()
+    stamp.write_text("0000000-0000000 0000000\n")
+    assert main(argv) == 2 and page.read_text() == first
+    assert main([*argv, "--restart"]) == 0
+    assert page.read_text() == first and stamp.read_text() == here
