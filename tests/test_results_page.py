@@ -16,9 +16,12 @@ from lrnbv_drake.experiments.campaign.results_page import (
 )
 
 
-def test_every_committed_manifest_loads_and_names_a_campaign_benchmark_accepts(tmp_path):
+def test_every_committed_manifest_loads_and_names_a_campaign_benchmark_accepts(
+        tmp_path, monkeypatch):
     from lrnbv_drake.cli.benchmark import add_benchmark_command, config_from_args
-    from lrnbv_drake.cli.results import _from_repo
+    from lrnbv_drake.cli.results import REPO
+
+    monkeypatch.chdir(REPO)  # where a manifest's paths start, as `lrnbv results` runs them
 
     found = manifests()
     assert {m.name for m in found} >= {"family", "paper", "paper_preset", "datasheet",
@@ -26,7 +29,7 @@ def test_every_committed_manifest_loads_and_names_a_campaign_benchmark_accepts(t
     parser = add_benchmark_command(__import__("argparse").ArgumentParser().add_subparsers())
     for m in found:
         config = config_from_args(parser.parse_args(
-            [*_from_repo(m.args), "--out", str(tmp_path / m.name)]))
+            [*m.args, "--out", str(tmp_path / m.name)]))
         assert config.trials >= 2 and config.objects
 
 

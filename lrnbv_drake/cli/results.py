@@ -4,12 +4,14 @@ write their tables into the page (`lrnbv_drake.experiments.campaign.results_page
 Each campaign runs into OUT/NAME and resumes there, as `lrnbv benchmark` does, but only on the
 source that began it (OUT/NAME/source.txt: the package's and the models' git trees):
 episodes of other code are not mixed into one table; `--restart` runs such a campaign again
-from nothing.
+from nothing. A manifest's file paths (`--scenario`) are from the repository's root, where the
+campaigns run.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
 import subprocess
@@ -98,31 +100,22 @@ def _campaign_folder(out: Path, manifest: Manifest, restart: bool) -> tuple[Path
     return folder, began[1]
 
 
-def _from_repo(args: tuple[str, ...]) -> list[str]:
-    """A manifest's arguments with its file paths (`--scenario`, `--containers`) taken from
-    the repository's root, where the manifest names them from."""
-    out = list(args)
-    for i, a in enumerate(out[:-1]):
-        if a in ("--scenario", "--containers") and not Path(out[i + 1]).is_absolute():
-            out[i + 1] = str(REPO / out[i + 1])
-    return out
-
-
 def run_results(args: argparse.Namespace) -> int:
     """`lrnbv results`: 0 when every campaign finished, 1 when an episode failed (its table
     is written all the same, counting it), 2 on bad input."""
     parser = add_benchmark_command(argparse.ArgumentParser().add_subparsers())
-    page = Path(args.page)
+    page, out = Path(args.page).resolve(), Path(args.out).resolve()
     status = 0
     try:
         chosen = manifests(args.names, Path(args.manifests))
         text = page.read_text()
         for manifest in chosen:
-            folder, here = _campaign_folder(Path(args.out), manifest, args.restart)
+            folder, here = _campaign_folder(out, manifest, args.restart)
             print(f"lrnbv results: {manifest.name}: {manifest.command}")
-            config = config_from_args(parser.parse_args(
-                [*_from_repo(manifest.args), "--out", str(folder), "--jobs", str(args.jobs)]))
-            records = run_campaign(config)
+            with contextlib.chdir(REPO):  # where a manifest's paths start
+                config = config_from_args(parser.parse_args(
+                    [*manifest.args, "--out", str(folder), "--jobs", str(args.jobs)]))
+                records = run_campaign(config)
             status |= any(r["campaign"]["status"] != "ok" for r in records)
             text = splice(text, manifest, campaign_tables(manifest, config, records, here))
             page.write_text(text)
