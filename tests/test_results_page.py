@@ -92,3 +92,34 @@ def test_results_runs_the_manifest_writes_its_tables_and_regenerates_them_identi
     assert main(argv) == 2 and page.read_text() == first
     assert main([*argv, "--restart"]) == 0
     assert page.read_text() == first and stamp.read_text() == here
+
+
+def test_the_tests_table_gives_each_planners_median_and_scipys_exact_p_per_object():
+    from types import SimpleNamespace
+
+    from scipy.stats import mannwhitneyu
+
+    from lrnbv_drake.experiments.campaign.results_page import tests_table
+
+    def row(planner, trial, poses, worst):
+        return {"planner": planner, "object": "box", "trial": trial, "status": "ok",
+                "n_poses": poses, "n_useless_poses": 0.0, "iou": 0.5, "coverage_1cm": 0.5,
+                "worst_err": worst}
+    lrnbv = [row("lrnbv", t, p, w) for t, (p, w) in enumerate(
+        [(5, 0.001), (6, 0.002), (7, 0.003), (8, 0.004)])]
+    nbv = [row("nbv", t, p, w) for t, (p, w) in enumerate(
+        [(9, 0.0025), (10, 0.0035), (11, 0.0015), (12, 0.0045)])]
+    config = SimpleNamespace(planners=("lrnbv", "nbv"), objects=(SimpleNamespace(label="box"),),
+                             trials=4)
+    lines = tests_table(config, lrnbv + nbv)
+    (line,) = [s for s in lines if s.startswith("| box |")]
+    cells = line.strip("| ").split(" | ")
+    p_poses = mannwhitneyu([5, 6, 7, 8], [9, 10, 11, 12], method="exact").pvalue
+    p_worst = mannwhitneyu([1, 2, 3, 4], [2.5, 3.5, 1.5, 4.5], method="exact").pvalue
+    assert p_poses < 0.05 < p_worst
+    assert cells[1] == "NBV"
+    assert cells[2] == f"6.5 vs 10.5, p **{p_poses:.2g}**"
+    assert cells[3] == "0 vs 0, p 1"  # equal samples: nothing tells them apart
+    assert cells[6] == f"2.5 vs 3.0, p {p_worst:.2g}"
+    assert tests_table(SimpleNamespace(planners=("lrnbv",), objects=config.objects, trials=4),
+                       lrnbv) == []

@@ -18,11 +18,16 @@ from typing import Any
 
 import numpy as np
 
-from lrnbv_drake.core.evaluation.stats import finite
+from lrnbv_drake.core.evaluation.stats import ALPHA, compare_planners, finite
 from lrnbv_drake.core.strict_yaml import load_yaml
 from lrnbv_drake.experiments.campaign.figures import planner_label
 from lrnbv_drake.experiments.campaign.plan import CampaignConfig
-from lrnbv_drake.experiments.campaign.summary import auc_budgets, episode_row, pooled_section
+from lrnbv_drake.experiments.campaign.summary import (
+    REFERENCE_PLANNER,
+    auc_budgets,
+    episode_row,
+    pooled_section,
+)
 
 #: The manifests the page cites.
 MANIFEST_DIR = Path(__file__).resolve().parents[3] / "benchmarks" / "campaigns"
@@ -112,6 +117,49 @@ def objects_table(config: CampaignConfig, rows: Sequence[dict[str, Any]]) -> lis
     return lines
 
 
+#: The per-object tests of the reference planner against the others: the paper's claims
+#: (fewer poses, fewer useless ones, IoU, coverage) and the box.
+TESTED = (("n_poses", "poses"), ("n_useless_poses", "useless poses"), ("iou", "IoU"),
+          ("coverage_1cm", "coverage 1 cm"), ("worst_err", "worst error"))
+
+
+def tests_table(config: CampaignConfig, rows: Sequence[dict[str, Any]]) -> list[str]:
+    """Per object and other planner, each `TESTED` metric's medians (the reference's first)
+    and the two-sided U test's p, bold where p < ALPHA; none without a second planner or
+    with a single trial."""
+    ref = REFERENCE_PLANNER
+    others = [p for p in config.planners if p != ref]
+    if ref not in config.planners or not others or config.trials < 2:
+        return []
+    ok = [r for r in rows if r["status"] == "ok"]
+    objects = [o.label for o in config.objects]
+    tests = {(c.object, c.metric, c.other): c.test for c in compare_planners(
+        ok, [m for m, _ in TESTED], ref, others, objects)}
+
+    def median(obj: str, planner: str, metric: str) -> str:
+        v = finite(r[metric] for r in ok if r["object"] == obj and r["planner"] == planner)
+        if len(v) == 0:
+            return "n/a"
+        m = float(np.median(v))
+        return f"{1000 * m:.1f}" if metric == "worst_err" else f"{m:.3g}"
+
+    header = ["object", "against", *(label for _, label in TESTED)]
+    lines = [f"Medians, {planner_label(ref)}'s first, and the two-sided Mann-Whitney p "
+             f"(bold: p < {ALPHA:g}; worst error in mm):", "",
+             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for obj in objects:
+        for other in others:
+            cells = [obj, planner_label(other)]
+            for metric, _ in TESTED:
+                t = tests[obj, metric, other]
+                p = "n/a" if np.isnan(t.p) else f"{t.p:.2g}"
+                p = f"**{p}**" if t.significant else p
+                cells.append(f"{median(obj, ref, metric)} vs {median(obj, other, metric)}, "
+                             f"p {p}")
+            lines.append("| " + " | ".join(cells) + " |")
+    return ["", *lines]
+
+
 def campaign_tables(manifest: Manifest, config: CampaignConfig,
                     records: Sequence[dict[str, Any]], commit: str) -> str:
     """The block the page holds for `manifest`: how to regenerate it, the pooled figures and
@@ -123,8 +171,10 @@ def campaign_tables(manifest: Manifest, config: CampaignConfig,
              f"(benchmarks/campaigns/{manifest.name}.yaml: `{manifest.command}`); at {commit}, "
              f"{len(rows)} episodes, {len(rows) - len(ok)} failed.", ""]
     pooled = pooled_section(config, ok)
-    lines += pooled[pooled.index("") + 1:]  # its own heading and preamble are the page's
-    lines += ["", *objects_table(config, rows)]
+    lines += pooled[pooled.index("") + 1:]  # its heading is the page's
+    while lines[-1] == "":
+        lines.pop()
+    lines += ["", *objects_table(config, rows), *tests_table(config, rows)]
     return "\n".join(lines).rstrip() + "\n"
 
 
