@@ -123,3 +123,6 @@ def test_the_tests_table_gives_each_planners_median_and_scipys_exact_p_per_objec
     assert cells[6] == f"2.5 vs 3.0, p {p_worst:.2g}"
     assert tests_table(SimpleNamespace(planners=("lrnbv",), objects=config.objects, trials=4),
                        lrnbv) == []
+    # Three trials a planner: no p can fall below 0.05 (least exact p 0.1), so no table.
+    assert tests_table(SimpleNamespace(planners=config.planners, objects=config.objects,
+                                       trials=3), lrnbv[:3] + nbv[:3]) == []
