@@ -264,7 +264,7 @@ def test_cache_is_trimmed_to_m_i_best_after_reevaluation(monkeypatch):
     # Three proposals accepted: this update closes iteration 2 and keeps
     # m_2 = ceil(6 * (1 - 2/3)) = 2, the two best by Ge (x = 0.7, 0.6).
     dut.params.num_cached_nodes, dut.params.num_iterations, dut.iteration = 6, 3, 3
-    dut._update_cache(None)
+    dut.update_cache(None)
     assert [round(c.X_WS[0, 3], 3) for c in dut.cache] == [0.7, 0.6]
 
 
@@ -275,7 +275,7 @@ def test_the_first_update_keeps_m_0(monkeypatch):
     dut = _with_cache(monkeypatch, lambda x: x[0], positions)
     dut.params.num_cached_nodes, dut.params.num_iterations, dut.iteration = 6, 3, 0
     dut.accepted(0, None)
-    dut._update_cache(None)
+    dut.update_cache(None)
     assert len(dut.cache) == 6
 
 
@@ -315,7 +315,7 @@ def test_reevaluation_drops_nodes_no_longer_above_tau(monkeypatch):
     positions = [np.array([0.1 * k, 0.0, 0.5]) for k in range(1, 8)]
     dut = _with_cache(monkeypatch, lambda x: x[0], positions)
     dut.params.cache_threshold = 500 * 0.45 / 0.7
-    dut._update_cache(None)
+    dut.update_cache(None)
     assert [round(c.X_WS[0, 3], 3) for c in dut.cache] == [0.7, 0.6, 0.5]
 
 
@@ -374,7 +374,7 @@ def test_the_travel_discount_scales_positive_utilities_by_exp_minus_lambda_t(mon
     gains = Gains(np.array([1.0, 1.0, 0.5]), np.zeros(3), np.zeros(3),
                   np.array([0.0, 0.0, -1.0]))  # the third: visited, U < 0
     dut.utility.observe(gains)
-    u = dut._utilities(gains, [near, far, far])
+    u = dut.utilities(gains, [near, far, far])
     u_plain = dut.utility(gains)
     np.testing.assert_allclose(u[:2], u_plain[:2] * np.exp([-0.25, -1.0]))
     assert u_plain[2] < 0 and u[2] == u_plain[2]
@@ -392,7 +392,7 @@ def test_the_search_looks_where_cells_too_few_for_a_cluster_stand():
     to the table, and not to the table's lowest 8 cm."""
     dut = _policy()
     top = [[0.47, -0.04, 0.245], [0.52, 0.03, 0.255], [0.50, 0.0, 0.25]]
-    roi, points, center = dut._roi(_loose(top))
+    roi, points, center = dut.roi(_loose(top))
     np.testing.assert_allclose(roi.lower, [0.42, -0.09, 0.0])
     np.testing.assert_allclose(roi.upper, [0.57, 0.08, 0.305])
     np.testing.assert_allclose(center, roi.center)
@@ -403,5 +403,5 @@ def test_the_search_looks_where_cells_too_few_for_a_cluster_stand():
                                (_loose(np.add(top, [0.0, 0.4, 0.0])), {}),
                                (_loose(top), {"lead_points": 0}),
                                (None, {})):
-        roi, _, _ = _policy(**kwargs)._roi(extraction)
+        roi, _, _ = _policy(**kwargs).roi(extraction)
         np.testing.assert_allclose([roi.lower, roi.upper], region)

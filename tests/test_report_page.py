@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from lrnbv_drake.experiments.episode import make_meshcat, run_episode
-from lrnbv_drake.experiments.report_page import SECTIONS, _container_text
+from lrnbv_drake.experiments.report_page import SECTIONS, container_text
 from lrnbv_drake.station.scenario import Scenario
 
 
@@ -69,7 +69,7 @@ def test_a_box_no_container_holds_is_said_in_words():
                             "margin_from": "the interval", "clearance": 0.005},
               "metrics": {"packing": {"fits": False, "right_size": False,
                                       "right_size_container": None}}}
-    text = _container_text(report)
+    text = container_text(report)
     assert "None" not in text
     assert "<b>No container</b>: no container holds" in text
     assert "no container holds the true box either" in text

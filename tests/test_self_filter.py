@@ -43,6 +43,15 @@ def test_a_frame_with_no_robot_in_it_is_returned_as_it_is():
     assert not robot_zones(ToFFrame.empty(), ZoneGeometry(), X_WS, lambda p: 1 / 0).any()
 
 
+def _dh(theta: float, i: int) -> np.ndarray:
+    """Joint i's standard DH transform Rz(theta) Tz(d) Tx(a) Rx(alpha), from UR's table."""
+    ct, st = np.cos(theta), np.sin(theta)
+    ca, sa = np.cos(kinematics.DH_ALPHA[i]), np.sin(kinematics.DH_ALPHA[i])
+    a, d = kinematics.DH_A[i], kinematics.DH_D[i]
+    return np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st],
+                     [0.0, sa, ca, d], [0.0, 0.0, 0.0, 1.0]])
+
+
 def test_points_on_the_arm_are_near_the_robot_and_points_on_the_table_are_not():
     """At a configuration with the upper arm level 16 cm above the table, reaching over the
     object's place: the upper arm's middle and the flange (placed by the analytic FK, the
@@ -52,11 +61,8 @@ def test_points_on_the_arm_are_near_the_robot_and_points_on_the_table_are_not():
     motion = MotionPlanner(Scenario())
     q = np.array([-0.34, 0.01, -0.64, -0.01, -1.49, -3.08])
     X_W_base = motion.X_W_base
-    X_W1, X_W2 = np.eye(4), np.eye(4)
-    kinematics._dh(q[0], 0, X_W1)
-    kinematics._dh(q[1], 1, X_W2)
-    X_W1 = X_W_base @ X_W1
-    X_W2 = X_W1 @ X_W2
+    X_W1 = X_W_base @ _dh(q[0], 0)
+    X_W2 = X_W1 @ _dh(q[1], 1)
     upper_arm = (X_W1[:3, 3] + X_W2[:3, 3]) / 2 + 0.138 * X_W1[:3, 2]
     flange = (X_W_base @ kinematics.forward_kinematics(q))[:3, 3]
     below = upper_arm * [1, 1, 0] + [0, 0, 0.05]

@@ -18,9 +18,9 @@ from lrnbv_drake.core.calibration.mixed_zone import (
     MERGED,
     NEAR,
     NONE,
-    _fit_min_share,
     edge_scene_depths,
     edge_steps,
+    fit_min_share,
     fit_mixed_zone_rule,
 )
 from lrnbv_drake.core.calibration.sensor_model import (
@@ -138,8 +138,8 @@ def test_a_device_switching_above_half_a_zone_is_fitted_at_half():
     the model would predict no target in between, so the fit stops at 0.5."""
     share = np.linspace(0.05, 0.95, 19)
     observed = np.where(share >= 0.75, NEAR, FAR)
-    assert _fit_min_share(share, observed, 0.25) == 0.5
-    assert _fit_min_share(share, np.where(share > 0.39, NEAR, FAR), 0.25) == \
+    assert fit_min_share(share, observed, 0.25) == 0.5
+    assert fit_min_share(share, np.where(share > 0.39, NEAR, FAR), 0.25) == \
         pytest.approx(0.375)  # below half: between the two observed shares
 
 

@@ -163,7 +163,9 @@ def _fit_text(box: dict[str, Any]) -> str:
     return text
 
 
-def _container_text(report: dict[str, Any]) -> str:
+def container_text(report: dict[str, Any]) -> str:
+    """The Container section: the container chosen, why, and against the truth whether it
+    fits and is the right size."""
     container = report.get("container")
     if container is None:
         return "<p>No box, so no container.</p>"
@@ -195,7 +197,7 @@ def report_page(report: dict[str, Any], acquisitions: Sequence[Acquisition],
         f"<p>{report['n_poses']} poses; ended: {html.escape(report['termination'])}</p>",
         f'<h2>Box</h2><img alt="top and side views" src="{views}">',
         f"<h2>Dimensions</h2>{_dimensions_table(report)}",
-        f"<h2>Container</h2>{_container_text(report)}",
+        f"<h2>Container</h2>{container_text(report)}",
         f'<h2>Progress</h2><img alt="progress" src="{_progress_figure(report)}">',
         f'<h2>Cycle time</h2><img alt="cycle time" src="{_cycle_figure(report["cycle_time"])}">',
         f"<h2>Replay</h2>{replay_text}",

@@ -149,7 +149,7 @@ class MixedZoneFit:
     warning: str = ""
 
 
-def _fit_min_share(share: np.ndarray, observed: np.ndarray, default: float) -> float:
+def fit_min_share(share: np.ndarray, observed: np.ndarray, default: float) -> float:
     """The share above which a zone reports the near board, from zones that report either
     board alone: the threshold between two observed shares that misclassifies fewest, at
     most 0.5. The model's rule asks the nearest surface holding `min_share` of the zone, the
@@ -195,7 +195,7 @@ def fit_mixed_zone_rule(steps: EdgeSteps, params: SensorModelParams) -> MixedZon
         raise ValueError("the edge sweep's near board must be nearer than its far board")
     merges = [0.0, *((separations[:-1] + separations[1:]) / 2).tolist(),
               1.5 * float(separations[-1])]
-    min_share = _fit_min_share(share[mixed], steps.observed[mixed], params.min_share)
+    min_share = fit_min_share(share[mixed], steps.observed[mixed], params.min_share)
     candidates, predictions = {}, {}
     rules = [("closest", 0.0)] + [(order, m) for order in ("closest", "strongest")
                                   for m in merges if (order, m) != ("closest", 0.0)]

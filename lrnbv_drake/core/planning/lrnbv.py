@@ -103,9 +103,9 @@ class LrNbvPolicy(ViewpointPolicy):
         # The last iteration's tree (for inspection; Proposal.debug carries what is drawn).
         self.last_tree: ViewTree | None = None
 
-    # -- helpers --------------------------------------------------------------------------
+    # -- the steps of `propose`, each tested alone --------------------------------------
 
-    def _utilities(self, gains: Gains, configs: Sequence[np.ndarray]) -> np.ndarray:
+    def utilities(self, gains: Gains, configs: Sequence[np.ndarray]) -> np.ndarray:
         """The views' utilities, positive ones discounted by exp(-lambda t) for the time t
         the arm takes to reach their configurations from where it is."""
         utilities = self.utility(gains)
@@ -123,7 +123,7 @@ class LrNbvPolicy(ViewpointPolicy):
             return gains, self.utility(gains)
         return score
 
-    def _roi(self, extraction) -> tuple[AlignedBox, np.ndarray, np.ndarray]:
+    def roi(self, extraction) -> tuple[AlignedBox, np.ndarray, np.ndarray]:
         """ROI, object points and x_object from the extraction, or where to search for it."""
         if extraction is not None and extraction.found:
             roi, points, center = extraction.roi, extraction.object_points, extraction.center
@@ -177,7 +177,7 @@ class LrNbvPolicy(ViewpointPolicy):
         """Grows the tree and scores it; the utilities are current until the next scoring."""
         tree = expand_tree(tree, n, sampler, self.workspace, roi, self._scorer(snapshot),
                            reach, self.params.tree, steer)
-        utilities = self._utilities(tree.candidate_gains(), tree.configs[1:])
+        utilities = self.utilities(tree.candidate_gains(), tree.configs[1:])
         return tree, utilities, tree.best_branch(utilities)
 
     def _cache_off_branch(self, tree: ViewTree, utilities: np.ndarray, branch: list[int],
@@ -191,7 +191,7 @@ class LrNbvPolicy(ViewpointPolicy):
                 cached[i] = _Cached(tree.poses[i], tree.gains[i], tree.configs[i])
                 self.cache.append(cached[i])
 
-    def _update_cache(self, snapshot: PlanningSnapshot) -> float:
+    def update_cache(self, snapshot: PlanningSnapshot) -> float:
         """Lines 19-21: re-evaluate the cache, drop the nodes no longer above tau, keep the best
         m_i; returns the seconds it took."""
         started = time.perf_counter()
@@ -202,7 +202,7 @@ class LrNbvPolicy(ViewpointPolicy):
             # This update closes the iteration before this call (`accepted` has counted it).
             keep = cache_capacity(self.params.num_cached_nodes, max(self.iteration - 1, 0),
                                   self.params.num_iterations)
-            utilities = self._utilities(gains, [c.q for c in self.cache])
+            utilities = self.utilities(gains, [c.q for c in self.cache])
             order = np.argsort(-utilities, kind="stable")[:keep]
             self.cache = [_Cached(self.cache[i].X_WS, gains.take(i), self.cache[i].q)
                           for i in order if utilities[i] > self.params.cache_threshold]
@@ -220,17 +220,17 @@ class LrNbvPolicy(ViewpointPolicy):
 
         q = self._q = np.asarray(observation.q, float)
         reach = Reach(lambda poses: self.ik(poses, q), self.collision_free)
-        roi, object_points, center = self._roi(observation.extraction)
+        roi, object_points, center = self.roi(observation.extraction)
         snapshot = make_snapshot(observation.occupancy, roi, object_points, center,
                                  self.params.gains.density_radius)
-        reevaluation_s = self._update_cache(snapshot)
+        reevaluation_s = self.update_cache(snapshot)
         cached_before = list(self.cache)
         cached_gains = Gains.concatenate([c.gains for c in cached_before])
         cached_configs = [c.q for c in cached_before]
 
         def cached_utilities() -> np.ndarray:
             # Scored now: the running maxima may have grown since the cache was updated.
-            return self._utilities(cached_gains, cached_configs)
+            return self.utilities(cached_gains, cached_configs)
 
         def best_node(utilities: np.ndarray, branch: list[int]) -> tuple[int | None, float]:
             if not branch:
