@@ -211,7 +211,8 @@ def test_a_run_that_finds_no_object_exits_1(tmp_path, capsys):
 #: Runs `lrnbv run` with the acquisition loop printing each capture and holding after the
 #: second, so that the test interrupts an episode that has captured exactly two frames.
 HOLD_AFTER_TWO = AS_IN_A_TERMINAL + """
-import sys, time
+import faulthandler, sys, time
+faulthandler.register(signal.SIGUSR1, all_threads=True)  # where it is, should it not exit
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.core.acquisition import AcquisitionSequencer
 
@@ -237,6 +238,11 @@ def test_ctrl_c_during_run_saves_what_was_captured_and_exits_130(tmp_path):
         assert _read_lines(proc, 2) == ["captured 1", "captured 2"]
         proc.send_signal(signal.SIGINT)
         _, stderr = proc.communicate(timeout=WAIT)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGUSR1)  # its threads' stacks onto stderr, then the end
+        time.sleep(2.0)
+        proc.kill()
+        pytest.fail(f"not exited {WAIT} s after Ctrl-C:\n{proc.communicate()[1][-6000:]}")
     finally:
         proc.kill()
     assert proc.returncode == 130, stderr
