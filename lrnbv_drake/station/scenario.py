@@ -52,9 +52,8 @@ class RobotConfig:
     # The sensor may be rolled about its optical axis by a multiple of this, in degrees, when
     # that moves the arm less: its 8x8 zones are square, so a rolled view covers the same
     # zones in another order. 180 keeps even the emitter's 43 x 58 degree illumination where
-    # it was; 90 does not; 0: every view exactly as planned (docs/results.md; also 0 with a
-    # calibrated zone-direction table that is not symmetric: the planner scores the view as
-    # planned).
+    # it was; 90 does not; 0: every view exactly as planned (also 0 with a calibrated
+    # zone-direction table that is not symmetric: the planner scores the view as planned).
     sensor_roll_step_deg: float = 180.0
     # Hardware only: the controller's IP address.
     robot_ip: str = ""
@@ -301,7 +300,8 @@ def _from_yaml(text: str) -> "Scenario":
 
 
 #: Named starting points for a scenario (`--preset NAME`): "paper" is the paper's
-#: configuration where the product's defaults differ from it (docs/results.md measures both):
+#: configuration where the product's defaults differ from it (docs/results.md measures both;
+#: docs/decisions/0002 says why they differ):
 #: the box around the occupied map cells, Algorithm 1's line 24 as the only stop, and the
 #: whole workspace's height searched before the object is found (not where a few cells stand).
 PRESETS: dict[str, str] = {

@@ -86,9 +86,8 @@ class PlannerParams:
     # Spread of the samples drawn around a cached node by ExpandRRTCached, metres.
     cached_sample_spread: float = 0.05
     # Where to look for the object while none has been found (world box, metres): the table's
-    # lowest 8 cm, which every object on it fills in part. Up to 0.3 m (the paper preset's)
-    # the views went level across the box into nothing and the flange was found at pose 4,
-    # not 3 (docs/results.md).
+    # lowest 8 cm, which every object on it fills in part; views scored over a taller box
+    # look level across it into nothing (docs/decisions/0005).
     search_lower: list[float] = dc.field(default_factory=lambda: [0.25, -0.3, 0.0])
     search_upper: list[float] = dc.field(default_factory=lambda: [0.75, 0.3, 0.08])
     # Where the search looks instead once at least this many occupied cells stand above the
@@ -99,9 +98,8 @@ class PlannerParams:
     stop: StopParams = dc.field(default_factory=StopParams)
     # lambda, 1/s: a view's positive utility is multiplied by exp(-lambda t), t the time the
     # arm takes to reach it from where it is (the receding-horizon NBV planners' discount).
-    # 0.3 cut LR-NBV's median cycle time by a quarter (below HEU's) but let one box in
-    # twenty end 20 mm off, where 0 kept all within 6 mm (docs/results.md): accuracy first,
-    # so 0 (the paper's: utilities as they are) is the default.
+    # 0 (the paper's: utilities as they are) is the default: accuracy before cycle time
+    # (docs/decisions/0007).
     travel_discount: float = 0.0
 
 
