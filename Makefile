@@ -10,7 +10,7 @@ OUT ?= out/run
 export DRAKE_ALLOW_NETWORK ?= meshcat
 export MPLBACKEND ?= Agg
 
-.PHONY: run test lint bench clean
+.PHONY: run test lint bench results clean
 
 $(STAMP): pyproject.toml
 	@# Drake's VTK renderer draws headless through EGL; Debian ships it as libegl1.
@@ -35,6 +35,10 @@ test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -n 2 -q
+
+# The campaigns docs/results.md cites (benchmarks/campaigns/), their tables written into it.
+results: $(STAMP)
+	$(BIN)/lrnbv results
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
