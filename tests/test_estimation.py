@@ -11,10 +11,10 @@ from rendered_views import NOISE_FREE, render
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation import forward
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator, misfit_limit
-from lrnbv_drake.core.estimation.fit import Problem, choose_structure
+from lrnbv_drake.core.estimation.fit import Problem
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.params import EstimationParams
-from lrnbv_drake.core.estimation.shape import Shape, box_shape
+from lrnbv_drake.core.estimation.shape import Shape
 from lrnbv_drake.core.sensing.sensor import SensorModelParams
 from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 from lrnbv_drake.station.parts import sensor_behaviour
@@ -133,21 +133,6 @@ def test_each_class_is_recovered_from_a_handful_of_views(name, bound_mm, shape):
     errors = 1000 * (estimate.box.dims - true_dims)
     assert np.all(np.abs(errors) <= bound_mm), errors
     assert estimate.shape.name().startswith(shape)
-
-
-def test_a_parts_class_is_revisited_whatever_the_search_may_still_try():
-    """A box fitted to a ball's readings is re-classed a rounded part even by a search that
-    may try no other move (budget 0, every move refused): a class chosen on the first
-    readings is asked again on every search, as the readings grow."""
-    frames, truth, model = render("{object: {name: ball}}")
-    rays = ZoneRays.concatenate([zone_rays(f, X_WS, model) for f, X_WS in frames],
-                                model.subsamples ** 2)
-    problem = Problem(rays, 0.0, EXTENT, ReadingRule.of(model, MERGED), 2.0, 5.0, 0.0005)
-    box = problem.refine(problem.evaluate(box_shape(truth, 0.0)), 0.01)
-    assert not box.shape.rounded[0]
-    dut, _ = choose_structure(problem, box, max_parts=4, budget=0, skip=lambda move: True)
-    assert dut.shape.name() == "rounded" and problem.score(dut) < problem.score(box)
-    assert np.all(np.abs(dut.shape.box(0.0).dims - truth.dims) < 0.006)
 
 
 def test_a_box_is_a_box_and_its_interval_holds_it():

@@ -4,11 +4,10 @@ stop rule watches and the report gives.
 Each `estimate` refits the shape (`shape`, `fit`) from the last one (a warm start, 6 mm
 around it) and, before the first or where the last estimate lies outside the object's cell
 box, from the cell box (3 cm around it), keeping the lower information criterion; then it
-re-classes every part (a box or a rounding) and tries the other structure moves the readings
-ask for (all of them from a cold start, one a pose after), and bounds each dimension by its
-profile interval (`interval`). A warm refit the readings misfit while the bare table fits
-the model is searched again cold, from both starts: a warm path can keep a structure the
-first readings chose that a cold one would not.
+tries the structure moves the readings ask for (all of them from a cold start, one a pose
+after), and bounds each dimension by its profile interval (`interval`). A warm refit the
+readings misfit while the bare table fits the model is searched again cold, from both starts:
+a warm path can keep a structure the first readings chose that a cold one would not.
 
 The misfit says how well the model explains the readings: the fit's cost per degree of
 freedom over what the loss gives for noise of the model's sigma (1 for readings the model

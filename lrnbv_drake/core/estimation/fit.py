@@ -286,16 +286,11 @@ def _halves(shape: Shape, k: int, axis: int) -> Shape:
             .added(moved(x, 2 * axis, -size / 2), True))
 
 
-#: The move that re-classes a part (a box or one of the roundings): tried on every search,
-#: outside its budget, as a part's class chosen on fewer readings can change as they grow.
-RECLASS = "class"
-
-
 @dc.dataclass(frozen=True)
 class Move:
     """A change of the shape's structure the readings may ask for: `kind` "class" (part k
-    re-classed), "split" (solid part k cut in two), "solid" or "hole" (a part added), with
-    the zones that ask for it."""
+    re-classed or cut in two), "solid" or "hole" (a part added), with the outlier zones
+    that ask for it."""
 
     kind: str
     k: int
@@ -311,9 +306,9 @@ def _outliers(problem: Problem, fit: Fit) -> np.ndarray:
 
 def moves(problem: Problem, fit: Fit, max_parts: int) -> list[Move]:
     """The structure moves the readings ask for, most asked first: a part or a hole added
-    where at least `MIN_OUTLIERS` zones ask for it (`_proposed`), then each solid cut in two,
-    asked for by the zones that see it and first where most of them are outliers (residuals
-    beyond `OUTLIER`); and each part re-classed (`RECLASS`)."""
+    where at least `MIN_OUTLIERS` zones ask for it (`_proposed`), then each part re-classed,
+    asked for by the zones that see it (its class, chosen on fewer readings, is revisited as
+    they grow) and first where most of them are outliers (residuals beyond `OUTLIER`)."""
     outlier = _outliers(problem, fit)
     shape, found = fit.shape, []
     if len(shape.solid) < max_parts:
@@ -323,22 +318,21 @@ def moves(problem: Problem, fit: Fit, max_parts: int) -> list[Move]:
                 found.append(Move(kind, -1, asking, part))
     found.sort(key=lambda m: -m.evidence)
     near = [problem.near(x, 0.01) for x in shape.parts]
-    by_outliers = sorted(range(len(near)), key=lambda k: -int(outlier[near[k]].sum()))
-    splits = [Move("split", k, len(near[k])) for k in by_outliers
-              if shape.solid[k] and len(shape.solid) < max_parts]
-    return ([m for m in found if m.evidence >= MIN_OUTLIERS] + splits
-            + [Move(RECLASS, k, len(near[k])) for k in by_outliers])
+    return ([m for m in found if m.evidence >= MIN_OUTLIERS]
+            + sorted((Move("class", k, len(z)) for k, z in enumerate(near)),
+                     key=lambda m: -int(outlier[near[m.k]].sum())))
 
 
 def _tried(problem: Problem, fit: Fit, move: Move, max_parts: int) -> list[Fit]:
     """The shapes `move` proposes, each searched near it."""
     shape, n = fit.shape, len(fit.shape.solid)
-    if move.kind == RECLASS:
-        return [_classed(problem, fit, move.k, 0.01)]
-    if move.kind == "split":
-        return [problem.refine(problem.evaluate(_halves(shape, move.k, axis)),
-                               shape.parts[move.k][3 + axis] / 4, max_sweeps=1)
-                for axis in (0, 1)]
+    if move.kind == "class":
+        out = [_classed(problem, fit, move.k, 0.01)]
+        if shape.solid[move.k] and n < max_parts:
+            out += [problem.refine(problem.evaluate(_halves(shape, move.k, axis)),
+                                   shape.parts[move.k][3 + axis] / 4, max_sweeps=1)
+                    for axis in (0, 1)]
+        return out
     grown = problem.evaluate(shape.added(move.part, move.kind == "solid"))
     return [_classed(problem, grown, n, max(0.02, move.part[3:5].max() / 2))]
 
@@ -347,9 +341,9 @@ def choose_structure(problem: Problem, fit: Fit, max_parts: int, budget: int,
                      skip: Callable[[Move], bool] = lambda move: False
                      ) -> tuple[Fit, list[Move]]:
     """Greedy moves on the shape's structure, each polished and kept where it lowers `bic`:
-    dropping a part, a box around the estimate, every part re-classed, and the other `moves`
-    the readings ask for that `skip` does not refuse, at most `budget` of those. Returns the
-    fit and the budgeted moves tried and refused."""
+    dropping a part, a box around the estimate, and the `moves` the readings ask for that
+    `skip` does not refuse, at most `budget` of those. Returns the fit and the moves tried
+    and refused."""
     refused = []
     while True:
         shape = fit.shape
@@ -364,9 +358,8 @@ def choose_structure(problem: Problem, fit: Fit, max_parts: int, budget: int,
         if len(shape.solid) > 1 or shape.rounded[0]:
             trials.append(problem.refine(problem.evaluate(box_shape(shape.box(problem.table),
                                                                     problem.table)), 0.01))
-        proposed = moves(problem, fit, max_parts)
-        asked = [m for m in proposed if m.kind != RECLASS and not skip(m)][:max(budget, 0)]
-        for move in asked + [m for m in proposed if m.kind == RECLASS]:
+        asked = [m for m in moves(problem, fit, max_parts) if not skip(m)][:max(budget, 0)]
+        for move in asked:
             trials += _tried(problem, fit, move, max_parts)
         budget -= len(asked)
         if not trials:
