@@ -151,9 +151,12 @@ def test_each_frame_was_captured_with_the_arm_still_at_its_recorded_pose(finishe
                                     sequence=a.frame.sequence)
         both = a.frame.valid & expected.valid
         assert both.sum() >= 48
-        # Rendered from where the arm really was; a frame from a moving arm is cm off.
-        assert np.abs(a.frame.distance_mm[both].astype(int)
-                      - expected.distance_mm[both]).max() <= 2
+        # The gate passes a frame once every joint is slower than still_speed; this arm is
+        # then within still_speed * tau = 1 mrad of where it rendered the frame, which moves a
+        # zone's footprint about 0.5 mm and so a zone straddling an edge by a few mm. A frame
+        # from a moving arm (about 1 rad/s over the gate's window) is cm off in most zones.
+        off = np.abs(a.frame.distance_mm[both].astype(int) - expected.distance_mm[both])
+        assert np.count_nonzero(off > 2) <= 3 and off.max() <= 10
 
 
 @pytest.fixture(scope="module")
