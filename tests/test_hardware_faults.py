@@ -100,7 +100,7 @@ def test_a_fault_mid_motion_stops_saves_explains_and_resumes(fault, tmp_path, ca
         # dashboard (after a reset, ur_rtde reconnects and uploads its script again) or
         # stopScript ended every script it started.
         assert not emu.state()["program_running"]
-        assert trigger.at is not None, "the arm never left the first pose"
+        assert trigger.at is not None, f"the arm never left the first pose; the session:\n{err}"
         assert code == 1 and f"STOPPED ({kind})" in err and words in err
         assert "lrnbv hardware --resume OUT_DIR" in err and "nothing moved" not in err
         # Every bound is wall time on a loaded machine: it gets the CPU starvation the

@@ -13,8 +13,7 @@ from lrnbv_drake.core.evaluation.packing import (
     load_catalogue,
     packing_metrics,
 )
-from lrnbv_drake.experiments.report import container_entry, packing_decision
-from lrnbv_drake.station.parts import container_catalogue
+from lrnbv_drake.station.parts import container_catalogue, packing_decision
 from lrnbv_drake.station.scenario import Scenario
 
 FLAT = Container("flat", (0.40, 0.30, 0.10), 0.50)
@@ -138,7 +137,8 @@ def test_the_margin_is_the_intervals_outer_half_and_a_wider_interval_takes_a_lar
     np.testing.assert_allclose(decided.margin, [0.017, 0.017, 0.003], atol=1e-12)
     widened = packing_decision(scenario, wide)
     assert np.prod(widened.container.inner) > np.prod(decided.container.inner)
-    assert "widened by the readings' misfit" in container_entry(widened, wide)["margin_from"]
-    assert "widened" not in container_entry(decided, narrow)["margin_from"]
+    assert "widened by the readings' misfit" in widened.margin_from
+    assert "widened" not in decided.margin_from
     cells = packing_decision(scenario, BoxEstimate.of_cells(box))
     np.testing.assert_allclose(cells.margin, [scenario.packing.fixed_margin] * 3)
+    assert cells.margin_from == "packing.fixed_margin"

@@ -31,7 +31,6 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, EventStatus
 
 from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
-from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
 from lrnbv_drake.core.robot.safety import RobotFault
@@ -56,6 +55,7 @@ from lrnbv_drake.station.parts import (
     make_self_filter,
     make_stop,
     map_system,
+    packing_decision,
     zone_geometry,
 )
 from lrnbv_drake.station.scenario import Scenario
@@ -322,17 +322,16 @@ def run_episode(scenario: Scenario, planner: str, out_dir: str | Path,
     wall = time.perf_counter() - started
     try:
         track, report_seconds = final_estimates(parts, run.context)
-        report = episode_report(planner, scenario, run.log, track, termination=run.termination,
-                                wall_seconds=wall, sim_seconds=run.sim_seconds,
+        decision = packing_decision(scenario, track.latest)
+        report = episode_report(planner, scenario, run.log, track, decision,
+                                termination=run.termination, wall_seconds=wall,
+                                sim_seconds=run.sim_seconds,
                                 map_update_seconds=parts.map_system.insert_seconds,
                                 report_seconds=report_seconds)
         placed = parts.cell.models.placed_object
-        estimated = (None if report["estimated_box"] is None else
-                     OrientedBox(np.array(report["estimated_box"]["center"]),
-                                 np.array(report["estimated_box"]["dims"]),
-                                 report["estimated_box"]["yaw"]))
+        estimated = None if track.latest is None else track.latest.box
         report["metrics"] = {**episode_metrics(scenario, placed, run.log, estimated).to_dict(),
-                             **accuracy_metrics(scenario, placed, track, report)}
+                             **accuracy_metrics(scenario, placed, track, decision)}
     except BaseException:
         save_frames(out_dir / "frames.npz", run.log.acquisitions)  # the captured data first
         raise

@@ -30,10 +30,9 @@ from lrnbv_drake.experiments.report import (
     container_entry,
     estimate_readings,
     found_box,
-    packing_decision,
     rounded,
 )
-from lrnbv_drake.station.parts import extraction_params, map_system
+from lrnbv_drake.station.parts import extraction_params, map_system, packing_decision
 from lrnbv_drake.station.scenario import Scenario, recorded_scenario
 
 
@@ -136,11 +135,11 @@ def refit(episode: RecordedEpisode, scenario: Scenario) -> dict[str, Any]:
     out: dict[str, Any] = {
         "folder": str(episode.folder),
         "estimated_box": entry,
-        "container": container_entry(packing_decision(scenario, track.latest), track.latest),
+        "container": container_entry(packing_decision(scenario, track.latest)),
         "reported_box": episode.reported,
         "n_poses": len(episode.readings),
         "box_estimate_s": list(track.seconds),
     }
-    if episode.true is not None and entry is not None:
-        out.update(against_truth(entry, episode.true))
+    if episode.true is not None and track.latest is not None:
+        out.update(against_truth(track.latest, episode.true))
     return rounded(out)

@@ -17,7 +17,7 @@ from lrnbv_drake.core.estimation.estimator import BoxEstimate
 from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.evaluation import metrics
 from lrnbv_drake.core.evaluation.objects import PlacedObject, sample_surface
-from lrnbv_drake.core.evaluation.packing import PackingDecision, choose_container, packing_metrics
+from lrnbv_drake.core.evaluation.packing import PackingDecision, packing_metrics
 from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.station.parts import container_catalogue, episode_estimator
 from lrnbv_drake.station.scenario import Scenario
@@ -77,16 +77,16 @@ def errors_after_each_pose(track: EstimateTrack, true: OrientedBox) -> np.ndarra
 
 
 def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog,
-                   track: EstimateTrack, *, termination: str, wall_seconds: float,
-                   sim_seconds: float, map_update_seconds: list[float],
-                   report_seconds: float = 0.0) -> dict[str, Any]:
-    """The fields every report has: settings, the estimated box (the last of `track`),
-    every pose, timings. `report_seconds`: the estimation the loop did not already time
-    (the estimates folded in after it ended)."""
+                   track: EstimateTrack, decision: PackingDecision | None, *,
+                   termination: str, wall_seconds: float, sim_seconds: float,
+                   map_update_seconds: list[float], report_seconds: float = 0.0
+                   ) -> dict[str, Any]:
+    """The fields every report has: settings, the estimated box (the last of `track`) and
+    its container `decision`, every pose, timings. `report_seconds`: the estimation the loop
+    did not already time (the estimates folded in after it ended)."""
     final = _final_extraction(episode_log)
     estimate = track.latest
     cells = found_box(final)
-    decision = packing_decision(scenario, estimate)
     cycle = cycle_time(episode_log, other_computation=(
         sum(map_update_seconds) + sum(episode_log.clustering_seconds) + report_seconds))
     return {
@@ -98,7 +98,7 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog,
         "termination": termination,
         "n_poses": len(episode_log.acquisitions),
         "estimated_box": box_entry(scenario, estimate),
-        "container": container_entry(decision, estimate),
+        "container": container_entry(decision),
         "cycle_time": {"motion_s": cycle.motion, "settle_s": cycle.settle,
                        "computation_s": cycle.computation, "total_s": cycle.total},
         "extraction": final.reason if final is not None else "no extraction",
@@ -132,30 +132,10 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog,
     }
 
 
-def packing_decision(scenario: Scenario, estimate: BoxEstimate | None
-                     ) -> PackingDecision | None:
-    """The container for the estimated box: its margin is the interval's outer half (widened
-    where the readings misfit the model), or `packing.fixed_margin` without an interval (the
-    cell box); None without a box."""
-    if estimate is None:
-        return None
-    box = estimate.box
-    margin = (np.full(3, scenario.packing.fixed_margin) if estimate.dims_upper is None
-              else np.maximum(estimate.dims_upper - box.dims, 0.0))
-    return choose_container(box.dims, margin, scenario.packing.clearance,
-                            container_catalogue(scenario))
-
-
-def container_entry(decision: PackingDecision | None, estimate: BoxEstimate | None
-                    ) -> dict[str, Any] | None:
+def container_entry(decision: PackingDecision | None) -> dict[str, Any] | None:
     """report.json's `container`: the decision and where its margin came from."""
     if decision is None:
         return None
-    margin_from = "packing.fixed_margin"
-    if estimate is not None and estimate.dims_upper is not None:
-        margin_from = "the estimate's 90 % profile interval"
-        if estimate.misfit_flag:
-            margin_from += ", widened by the readings' misfit"
     chosen = decision.container
     return {
         "name": None if chosen is None else chosen.name,
@@ -164,7 +144,7 @@ def container_entry(decision: PackingDecision | None, estimate: BoxEstimate | No
         "orientation": decision.orientation,
         "required": decision.required.tolist(),
         "margin": decision.margin.tolist(),
-        "margin_from": margin_from,
+        "margin_from": decision.margin_from,
         "clearance": decision.clearance,
         "reason": decision.reason,
     }
@@ -224,12 +204,11 @@ def episode_metrics(scenario: Scenario, placed: PlacedObject, episode_log: Episo
 
 
 def accuracy_metrics(scenario: Scenario, placed: PlacedObject, track: EstimateTrack,
-                     report: dict[str, Any]) -> dict[str, Any]:
+                     decision: PackingDecision | None) -> dict[str, Any]:
     """The box in millimetres against the truth: per-dimension errors, whether the truth lies
     in the reported interval, poses-to-5 mm and -10 mm (`metrics.poses_to_accuracy`) from
-    the estimate after each pose, and the container against the one the true box gets
-    (`packing.packing_metrics`)."""
-    report_box = report["estimated_box"]
+    the estimate after each pose, and the container `decision` against the one the true box
+    gets (`packing.packing_metrics`)."""
     true = metrics.true_box(placed.mesh.vertices, scenario.cell.table_height)
     errors = errors_after_each_pose(track, true)
     out: dict[str, Any] = {
@@ -242,25 +221,19 @@ def accuracy_metrics(scenario: Scenario, placed: PlacedObject, track: EstimateTr
             [None if np.isnan(v) else round(float(v) * 1000, 2) for v in row]
             for row in errors],
     }
-    container = report.get("container")
-    if container is not None:
-        catalogue = container_catalogue(scenario)
-        chosen = next((c for c in catalogue if c.name == container["name"]), None)
-        decision = PackingDecision(chosen, np.array(container["required"]),
-                                   np.array(container["margin"]), container["clearance"],
-                                   container["orientation"], container["reason"])
-        out["packing"] = packing_metrics(decision, true.dims, catalogue)
-    if report_box is not None:
-        out.update(against_truth(report_box, true))
+    if decision is not None:
+        out["packing"] = packing_metrics(decision, true.dims, container_catalogue(scenario))
+    if track.latest is not None:
+        out.update(against_truth(track.latest, true))
     return out
 
 
-def against_truth(box: dict[str, Any], true: OrientedBox) -> dict[str, Any]:
-    """`dim_errors_mm` of the `estimated_box` entry `box` against the true box, and
-    `truth_in_interval` where the entry has an interval."""
+def against_truth(estimate: BoxEstimate, true: OrientedBox) -> dict[str, Any]:
+    """`dim_errors_mm` of `estimate`'s box against the true box, and `truth_in_interval`
+    where the estimate has an interval."""
     out: dict[str, Any] = {
-        "dim_errors_mm": np.round((np.array(box["dims"]) - true.dims) * 1000, 2).tolist()}
-    if "dims_lower" in box:
-        lower, upper = np.array(box["dims_lower"]), np.array(box["dims_upper"])
+        "dim_errors_mm": np.round((estimate.box.dims - true.dims) * 1000, 2).tolist()}
+    if estimate.dims_upper is not None:
+        lower, upper = estimate.dims_lower, estimate.dims_upper
         out["truth_in_interval"] = ((lower <= true.dims) & (true.dims <= upper)).tolist()
     return out

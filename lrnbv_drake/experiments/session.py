@@ -74,7 +74,7 @@ from lrnbv_drake.experiments.session_preflight import (
     read_robot,
 )
 from lrnbv_drake.station.hardware_cell import check_hardware_config
-from lrnbv_drake.station.parts import check_scenario_files
+from lrnbv_drake.station.parts import check_scenario_files, packing_decision
 from lrnbv_drake.station.scenario import Scenario, load_scenario, override
 
 _log = logging.getLogger(__name__)
@@ -179,6 +179,7 @@ def _report(planner: str, scenario: Scenario, parts: EpisodeDiagram, run: Episod
             result: SessionResult, dry_run: bool, sensor_stats: SerialStats) -> dict[str, Any]:
     track, report_seconds = final_estimates(parts, run.context)
     report = episode_report(planner, scenario, run.log, track,
+                            packing_decision(scenario, track.latest),
                             termination=result.termination, wall_seconds=run.wall_seconds,
                             sim_seconds=run.sim_seconds,
                             map_update_seconds=parts.map_system.insert_seconds,

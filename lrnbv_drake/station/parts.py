@@ -11,10 +11,16 @@ import numpy as np
 
 from lrnbv_drake.core.acquisition import SelfFilter
 from lrnbv_drake.core.boxes import AlignedBox
-from lrnbv_drake.core.estimation.estimator import ShapeEstimator
+from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator
 from lrnbv_drake.core.estimation.track import EpisodeEstimator
 from lrnbv_drake.core.evaluation.objects import PlacedObject
-from lrnbv_drake.core.evaluation.packing import CatalogueError, Container, load_catalogue
+from lrnbv_drake.core.evaluation.packing import (
+    CatalogueError,
+    Container,
+    PackingDecision,
+    container_for,
+    load_catalogue,
+)
 from lrnbv_drake.core.mapping.extraction import ExtractionParams
 from lrnbv_drake.core.planning.heu import HeuPolicy
 from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy
@@ -226,6 +232,15 @@ def container_catalogue(scenario: Scenario) -> list[Container]:
         return load_catalogue(text, source=str(url))
     except CatalogueError as e:
         raise ScenarioError(f"field 'packing.containers': {e}") from e
+
+
+def packing_decision(scenario: Scenario, estimate: BoxEstimate | None
+                     ) -> PackingDecision | None:
+    """The container `packing:` and its catalogue choose for `estimate`; None without one."""
+    if estimate is None:
+        return None
+    return container_for(estimate, scenario.packing.fixed_margin, scenario.packing.clearance,
+                         container_catalogue(scenario))
 
 
 def check_scenario_files(scenario: Scenario, simulated_sensor: bool = True) -> None:

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from lrnbv_drake.core.estimation.estimator import BoxEstimate
 from lrnbv_drake.core.strict_yaml import load_yaml
 
 #: The six ways a box's (L, W, H) can be laid along a container's axes.
@@ -49,6 +50,7 @@ class PackingDecision:
         clearance: the packing clearance added to every dimension, metres.
         orientation: which grown dimension lies along the container's L, W, H.
         reason: one sentence: what was chosen and why, or what does not fit.
+        margin_from: where the margin came from.
     """
 
     container: Container | None
@@ -57,6 +59,7 @@ class PackingDecision:
     clearance: float
     orientation: tuple[int, int, int] | None
     reason: str
+    margin_from: str = "the caller"
 
 
 class CatalogueError(ValueError):
@@ -169,6 +172,23 @@ def choose_container(dims: np.ndarray, margin: np.ndarray, clearance: float,
         why = "no container holds all three dimensions in any orientation"
     return PackingDecision(None, required, margin, clearance, None,
                            f"no container holds {text} m: {why}")
+
+
+def container_for(estimate: BoxEstimate, fixed_margin: float, clearance: float,
+                  catalogue: Sequence[Container]) -> PackingDecision:
+    """The container for an estimate: its margin is the interval's outer half (which the
+    estimator widens where the readings misfit the model), or `fixed_margin` for an estimate
+    without an interval (the cell box)."""
+    box = estimate.box
+    if estimate.dims_upper is None:
+        margin, source = np.full(3, fixed_margin), "packing.fixed_margin"
+    else:
+        margin = np.maximum(estimate.dims_upper - box.dims, 0.0)
+        source = "the estimate's 90 % profile interval"
+        if estimate.misfit_flag:
+            source += ", widened by the readings' misfit"
+    decision = choose_container(box.dims, margin, clearance, catalogue)
+    return dc.replace(decision, margin_from=source)
 
 
 def packing_metrics(decision: PackingDecision, true_dims: np.ndarray,
