@@ -404,6 +404,32 @@ def test_sender_reports_a_servoj_the_controller_did_not_take(monkeypatch):
     assert info.value.kind == "script_stopped"
 
 
+def test_a_servoj_refused_after_a_silence_longer_than_the_hold_names_the_watchdog(monkeypatch):
+    """The diagram held 1 s (a long step) with a 0.5 s hold: the watchdog stopped the
+    script, and the refusal says the silence was longer than hardware.watchdog_hold. A
+    refusal at once after an accepted servoJ does not blame the watchdog."""
+    arm = fake_rtde.FakeArm(HOME)
+    fake_rtde.install(monkeypatch, arm)
+    robot = RtdeRobot("10.0.0.5")
+    for silence, blamed in [(1.0, True), (0.0, False)]:
+        dut = Ur5eCommandSender(robot, open_limits(), period=PERIOD, robot_ip="10.0.0.5",
+                                watchdog_hold=0.5)
+        simulator = Simulator(dut)
+        context = simulator.get_mutable_context()
+        dut.GetInputPort("status").FixValue(context, ok_status())
+        dut.GetInputPort("position").FixValue(context, HOME)
+        arm.program_running = True
+        simulator.Initialize()
+        simulator.AdvanceTo(1.5 * PERIOD)  # two servoJ accepted
+        time.sleep(silence)
+        arm.program_running = False
+        with pytest.raises(RobotFault, match="did not accept servoJ") as info:
+            simulator.AdvanceTo(2.5 * PERIOD)
+        assert info.value.kind == "script_stopped"
+        assert ("longer than hardware.watchdog_hold (0.5 s)" in str(info.value)) == blamed
+    robot.disconnect()
+
+
 def test_sender_gives_servoj_valid_constants_whatever_the_caps(monkeypatch):
     """max_speed_fraction 1.0 caps at pi rad/s, above ur_rtde's 3.14 for servoJ's speed:
     the sender passes servoJ's ignored speed and acceleration as valid constants."""

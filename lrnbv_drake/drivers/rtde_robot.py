@@ -155,7 +155,7 @@ class RtdeRobot:
 
     def __init__(self, robot_ip: str, *, frequency: float = -1.0,
                  upper_range_registers: bool = False, control: bool = True,
-                 watchdog_frequency: float = 5.0, watchdog_hold: float = 10.0) -> None:
+                 watchdog_frequency: float = 5.0, watchdog_hold: float = 60.0) -> None:
         if control and not watchdog_frequency > 0:
             raise ValueError(f"watchdog_frequency must be > 0 Hz with control (a client that "
                              f"dies would leave the script servoing its last target), got "

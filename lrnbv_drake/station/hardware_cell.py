@@ -220,7 +220,8 @@ def _add_hardware_systems(builder: DiagramBuilder, scenario: Scenario, plant: Mu
                              fixed_pose(plant, "tool0", "tof").GetAsMatrix4()),
         period=hw.servo_period,
         lookahead_time=hw.servo_lookahead_time, gain=hw.servo_gain,
-        stop_deceleration=hw.stop_deceleration, robot_ip=robot_ip))
+        stop_deceleration=hw.stop_deceleration, robot_ip=robot_ip,
+        watchdog_hold=hw.watchdog_hold))
     builder.Connect(receiver.GetOutputPort("status"), sender.GetInputPort("status"))
     measured = receiver.GetOutputPort("position_measured")
 

@@ -53,10 +53,11 @@ class HardwareConfig:
     # trip spuriously (docs/hardware.md, 2). It cannot be turned off: without it, a client
     # that dies mid-motion leaves the script servoing its last target.
     watchdog_frequency: float = 5.0
-    # While the diagram is held (a planning step: 0.06 to 0.12 s an iteration, under a second
-    # with the motion planning), the driver keeps the watchdog fed for at most this long,
-    # seconds; a diagram stalled longer lets the watchdog stop the script.
-    watchdog_hold: float = 10.0
+    # While the diagram is held (a planning step, or the box estimate after a frame: seconds,
+    # and up to 14 s on a PC shared with other jobs), the driver keeps the watchdog fed for
+    # at most this long, seconds; a diagram stalled longer lets the watchdog stop the script.
+    # The arm holds its last target meanwhile (docs/hardware.md, "Watchdog").
+    watchdog_hold: float = 60.0
     # The controller's configured joint position limits (pendant: Safety > Joint Limits),
     # radians, which every command must stay within; the model's by default (+-2 pi, elbow
     # +-pi), which is wider than any real cell's configuration.

@@ -85,7 +85,8 @@ class Ur5eCommandSender(LeafSystem):
 
     def __init__(self, robot: RobotInterface, limits: SafetyLimits, *, period: float = 0.008,
                  lookahead_time: float = 0.1, gain: float = 300.0,
-                 stop_deceleration: float = 2.0, robot_ip: str = "the robot") -> None:
+                 stop_deceleration: float = 2.0, robot_ip: str = "the robot",
+                 watchdog_hold: float = 60.0) -> None:
         super().__init__()
         self._robot = robot
         self._limits = limits
@@ -94,6 +95,10 @@ class Ur5eCommandSender(LeafSystem):
         self._gain = gain
         self._stop_deceleration = stop_deceleration
         self._robot_ip = robot_ip
+        self._watchdog_hold = watchdog_hold
+        # Wall time of the last servoJ the controller accepted: a refusal long after it
+        # means the driver stopped feeding the watchdog (`watchdog_hold`).
+        self._last_accepted: float | None = None
         self._position_port = self.DeclareVectorInputPort("position", 6)
         self._status_port = self.DeclareAbstractInputPort(
             "status", AbstractValue.Make(Ur5eStatus()))
@@ -149,9 +154,22 @@ class Ur5eCommandSender(LeafSystem):
             self._stop(listening=fault is None or fault.kind != "disconnected")
             if fault is not None and fault.kind != "script_stopped":
                 raise fault
-            raise RobotFault("script_stopped", (
-                f"{self._robot_ip} did not accept servoJ: ur_rtde's control script is not "
-                f"executing commands. Check the pendant, {RESUME_HINT}"))
+            raise RobotFault("script_stopped", self._refusal())
+        self._last_accepted = time.monotonic()
+
+    def _refusal(self) -> str:
+        """Why servoJ was refused with no stop on the status: the script is not running,
+        and if nothing was sent for longer than the driver feeds the watchdog, why."""
+        text = (f"{self._robot_ip} did not accept servoJ: ur_rtde's control script is not "
+                f"executing commands.")
+        gap = None if self._last_accepted is None else time.monotonic() - self._last_accepted
+        if gap is not None and gap > self._watchdog_hold:
+            text += (f" The diagram sent nothing for {gap:.1f} s, longer than "
+                     f"hardware.watchdog_hold ({self._watchdog_hold:g} s), so the RTDE "
+                     f"watchdog stopped the script: one step of the diagram (planning, the box "
+                     f"estimate) took that long. Run on a PC that has the cores to itself, or "
+                     f"raise hardware.watchdog_hold.")
+        return f"{text} Check the pendant, {RESUME_HINT}"
 
     def _cause(self, time_now: float, status: Ur5eStatus) -> RobotFault | None:
         """The fault behind a stopped script or a servoJ that failed: the status read again
