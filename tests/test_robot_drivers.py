@@ -81,7 +81,8 @@ def test_rtde_robot_connects_sets_the_watchdog_and_sends_servoj_positionally(mon
     np.testing.assert_allclose(call.args[0], q)
     assert call.args[1:] == (1.0, 2.0, PERIOD, 0.1, 300.0)
     reading = robot.read()
-    np.testing.assert_allclose(reading.q, HOME, atol=1e-2)
+    # The lagging arm is on its way from HOME to q, as far along as the time since servoJ.
+    assert np.all((HOME - 1e-9 <= reading.q) & (reading.q <= q + 1e-9))
     assert reading.connected and reading.program_running and reading.speed_scaling == 1.0
     robot.disconnect()
     names = arm.names()

@@ -103,6 +103,8 @@ class Clients:
                 continue  # the diagram feeds it, or it stalled: let the watchdog stop it
             if self.lock.acquire(blocking=False):  # a request is running: it writes, or blocks
                 try:
+                    if self.closing.is_set():  # close() set it before its stopScript
+                        return
                     self.control.kickWatchdog()
                 finally:
                     self.lock.release()

@@ -96,9 +96,9 @@ class Ur5eCommandSender(LeafSystem):
         self._stop_deceleration = stop_deceleration
         self._robot_ip = robot_ip
         self._watchdog_hold = watchdog_hold
-        # Wall time of the last servoJ the controller accepted: a refusal long after it
-        # means the driver stopped feeding the watchdog (`watchdog_hold`).
-        self._last_accepted: float | None = None
+        # Wall time of the last servoJ the controller accepted (of the initialization before
+        # the first): a refusal long after it means the driver stopped feeding the watchdog.
+        self._last_accepted = time.monotonic()
         self._position_port = self.DeclareVectorInputPort("position", 6)
         self._status_port = self.DeclareAbstractInputPort(
             "status", AbstractValue.Make(Ur5eStatus()))
@@ -111,6 +111,7 @@ class Ur5eCommandSender(LeafSystem):
     def _Start(self, context: Context, discrete_state: DiscreteValues) -> None:
         status: Ur5eStatus = self._status_port.Eval(context)
         discrete_state.set_value(self._sent_index, np.r_[status.q, np.zeros(6)])
+        self._last_accepted = time.monotonic()
 
     def _Remember(self, context: Context, discrete_state: DiscreteValues) -> None:
         q = self._position_port.Eval(context)
@@ -150,21 +151,22 @@ class Ur5eCommandSender(LeafSystem):
                 f"servoJ to {self._robot_ip} failed at t = {context.get_time():.3f} s: {e}. "
                 f"Check the pendant, {RESUME_HINT}")) from e
         if not accepted:  # refused since the status was read: a stop just happened?
+            silence = time.monotonic() - self._last_accepted
             fault = self._cause(context.get_time(), status)
             self._stop(listening=fault is None or fault.kind != "disconnected")
             if fault is not None and fault.kind != "script_stopped":
                 raise fault
-            raise RobotFault("script_stopped", self._refusal())
+            raise RobotFault("script_stopped", self._refusal(silence))
         self._last_accepted = time.monotonic()
 
-    def _refusal(self) -> str:
+    def _refusal(self, silence: float) -> str:
         """Why servoJ was refused with no stop on the status: the script is not running,
-        and if nothing was sent for longer than the driver feeds the watchdog, why."""
+        and, if nothing was sent for `silence` s, longer than the driver feeds the watchdog,
+        why."""
         text = (f"{self._robot_ip} did not accept servoJ: ur_rtde's control script is not "
                 f"executing commands.")
-        gap = None if self._last_accepted is None else time.monotonic() - self._last_accepted
-        if gap is not None and gap > self._watchdog_hold:
-            text += (f" The diagram sent nothing for {gap:.1f} s, longer than "
+        if silence > self._watchdog_hold:
+            text += (f" The diagram sent nothing for {silence:.1f} s, longer than "
                      f"hardware.watchdog_hold ({self._watchdog_hold:g} s), so the RTDE "
                      f"watchdog stopped the script: one step of the diagram (planning, the box "
                      f"estimate) took that long. Run on a PC that has the cores to itself, or "

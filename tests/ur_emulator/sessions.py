@@ -21,10 +21,9 @@ from .record import starved_since
 
 #: The session every test runs: HEU, two poses, the arm starting at the first one, frames
 #: rendered by the simulated board, and the speed cap at its maximum (1.0, pi rad/s, above
-#: ur_rtde's 3.14 limit for servoJ's own speed argument).
-#: The sessions' scenario. They test how the cell meets faults, not the box: the cell box
-#: keeps each step of the diagram short (the shape estimate runs on the real-cell path in
-#: test_hardware_session.py).
+#: ur_rtde's 3.14 limit for servoJ's own speed argument). The tests are of how the cell
+#: meets faults, not of the box: the cell box keeps each step of the diagram short (the
+#: shape estimate runs on the real-cell path in test_hardware_session.py).
 SCENARIO = """
 max_poses: 2
 hardware: {sensor_driver: simulated, max_speed_fraction: 1.0}
