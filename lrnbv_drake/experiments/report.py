@@ -230,10 +230,10 @@ def accuracy_metrics(scenario: Scenario, placed: PlacedObject, track: EstimateTr
 
 def against_truth(estimate: BoxEstimate, true: OrientedBox) -> dict[str, Any]:
     """`dim_errors_mm` of `estimate`'s box against the true box, and `truth_in_interval`
-    where the estimate has an interval."""
+    where the report gives an interval (`box_entry`: a fitted shape's)."""
     out: dict[str, Any] = {
         "dim_errors_mm": np.round((estimate.box.dims - true.dims) * 1000, 2).tolist()}
-    if estimate.dims_upper is not None:
+    if estimate.shape is not None:
         lower, upper = estimate.dims_lower, estimate.dims_upper
         out["truth_in_interval"] = ((lower <= true.dims) & (true.dims <= upper)).tolist()
     return out
