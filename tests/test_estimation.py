@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from rendered_views import NOISE_FREE, render
+from scipy.spatial.transform import Rotation
 
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation import forward
@@ -15,7 +16,7 @@ from lrnbv_drake.core.estimation.fit import Problem
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.params import EstimationParams
 from lrnbv_drake.core.estimation.shape import Shape
-from lrnbv_drake.core.sensing.sensor import SensorModelParams
+from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 from lrnbv_drake.station.parts import sensor_behaviour
 from lrnbv_drake.station.scenario import load_scenario
@@ -48,7 +49,7 @@ def test_a_tube_shows_its_wall_and_the_table_through_its_hole():
     for x, expected in ((0.04, 0.40), (0.0, 0.50), (0.02, 0.50), (0.07, 0.50)):
         rays = _rays([x, 0, 0.5], down)
         base = forward.table_depths(rays.origins, rays.directions, 0.0, EXTENT)
-        depth = forward.shape_depths(rays.origins, rays.directions, parts,
+        depth = forward.shape_depths(rays.origins, rays.directions, rays.planes, parts,
                                      np.array([True, False]), base, 0.0, forward.NO_CLIP)
         assert depth[0, 0] == pytest.approx(expected), x
 
@@ -59,8 +60,8 @@ def test_a_sphere_is_met_where_the_quadric_says():
     parts = np.array([[0, 0, 0, 0.1, 0.1, 0.1, 1, 1, 1]])
     rays = _rays([0.03, 0, 0.5], [[0, 0, -1.0]])
     base = forward.table_depths(rays.origins, rays.directions, 0.0, EXTENT)
-    depth = forward.shape_depths(rays.origins, rays.directions, parts, np.array([True]), base,
-                                 0.0, forward.NO_CLIP)
+    depth = forward.shape_depths(rays.origins, rays.directions, rays.planes, parts,
+                                 np.array([True]), base, 0.0, forward.NO_CLIP)
     assert depth[0, 0] == pytest.approx(0.5 - 0.09)
 
 
@@ -77,6 +78,42 @@ def test_a_merged_zone_reads_the_signal_weighted_mean_depth():
         pytest.approx((32 / 0.3 + 32 / 0.5) / (32 / 0.09 + 32 / 0.25))
     assert forward.zone_losses(depths, ones, ones, *nearest.args(), 2.0, 5.0)[0][0] == \
         pytest.approx(0.3)
+
+
+def test_a_zone_bundle_culls_only_boxes_none_of_its_sub_rays_meets():
+    """Each zone's four bundle planes hold all its sub-rays behind them, and the cull they
+    allow changes nothing: `crossing` and `shape_depths` give what casting every sub-ray
+    gives (the same kernels with planes that cull nothing), over random views and parts."""
+    rng = np.random.default_rng(3)
+    model = SensorModelParams()
+    frame = ToFFrame(np.full((8, 8), 400), np.full((8, 8), 5), np.full((8, 8), 5))
+    missed = met = 0
+    for _ in range(20):
+        X_WS = np.eye(4)
+        rpy = rng.uniform([np.pi - 0.8, -0.8, -np.pi], [np.pi + 0.8, 0.8, np.pi])
+        X_WS[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
+        X_WS[:3, 3] = rng.uniform([0.3, -0.2, 0.25], [0.7, 0.2, 0.5])
+        rays = zone_rays(frame, X_WS, model)
+        assert np.all(np.einsum("nij,nmj->nim", rays.planes, rays.directions) <= 1e-12)
+        cast_all = np.zeros_like(rays.planes)
+        parts = np.c_[rng.uniform([0.35, -0.15, -np.pi, 0.01, 0.01, 0.01],
+                                  [0.65, 0.15, np.pi, 0.2, 0.2, 0.2], (3, 6)),
+                      rng.integers(0, 2, (3, 3))]
+        solid = np.array([True, True, False])
+        rows = np.arange(len(rays))
+        for x in parts:
+            fast = rays.crossing(x, 0.0)
+            assert np.array_equal(fast, forward.crossing(rays.origins, rays.directions,
+                                                         cast_all, rows, x, 0.0))
+            met += int(fast.any(axis=1).sum())
+            missed += int((~fast.any(axis=1)).sum())
+        base = forward.table_depths(rays.origins, rays.directions, 0.0, EXTENT)
+        np.testing.assert_array_equal(
+            forward.shape_depths(rays.origins, rays.directions, rays.planes, parts, solid,
+                                 base, 0.0, forward.NO_CLIP),
+            forward.shape_depths(rays.origins, rays.directions, cast_all, parts, solid,
+                                 base, 0.0, forward.NO_CLIP))
+    assert met > 0 and missed > 0  # zones both sides of the cull
 
 
 def test_the_forward_model_predicts_what_drakes_renderer_and_the_device_read():

@@ -133,8 +133,7 @@ class ShapeEstimator:
         for box in boxes:
             x = part_of_box(box, self._table - p.margin)
             x[3:6] += 2 * p.margin
-            keep |= forward.crossing(rays.origins, rays.directions, x,
-                                     self._table - p.margin).any(axis=1)
+            keep |= rays.crossing(x, self._table - p.margin).any(axis=1)
             corners.append(OrientedBox(np.r_[x[:2], self._table - p.margin + x[5] / 2],
                                        x[3:6], x[2]).corners())
         corners = np.concatenate(corners)
@@ -154,7 +153,7 @@ class ShapeEstimator:
         rays = ZoneRays.concatenate(self._rays, self._model.subsamples ** 2)
         x = part_of_box(shape.box(self._table), self._table)
         x[3:6] += 2 * self.params.margin
-        far = ~forward.crossing(rays.origins, rays.directions, x, self._table).any(axis=1)
+        far = ~rays.crossing(x, self._table).any(axis=1)
         if not far.any():
             return math.nan, 0
         problem = Problem(rays.take(far), self._table, self._extent, self._rule,

@@ -107,8 +107,9 @@ class Problem:
                  ) -> Fit:
         """`shape`'s predictions and losses (of the zones `zones` only, if given)."""
         r, zones = self.rays, slice(None) if zones is None else zones
-        depths = forward.shape_depths(r.origins[zones], r.directions[zones], shape.parts,
-                                      np.array(shape.solid), self.base[zones], self.table, clip)
+        depths = forward.shape_depths(r.origins[zones], r.directions[zones], r.planes[zones],
+                                      shape.parts, np.array(shape.solid), self.base[zones],
+                                      self.table, clip)
         return Fit(shape, depths, *self._losses(depths, zones))
 
     def _updated(self, fit: Fit, shape: Shape, zones: np.ndarray) -> Fit:
@@ -123,9 +124,7 @@ class Problem:
         side (the only zones its searches can change)."""
         region = x.copy()
         region[3:6] += 2 * grow
-        r = self.rays
-        return np.flatnonzero(forward.crossing(r.origins, r.directions, region,
-                                               self.table - grow).any(axis=1))
+        return np.flatnonzero(self.rays.crossing(region, self.table - grow).any(axis=1))
 
     def _moving(self, shape: Shape, k: int, coordinate: int, lo: float, hi: float,
                 near: np.ndarray) -> np.ndarray:
@@ -133,22 +132,21 @@ class Problem:
         `lo` to `hi` can change: those crossing the slab a box's side or top sweeps, or all
         of a rounded part's (its rounding scales with its sides), or of the disc its yaw
         turns in."""
-        x = shape.parts[k]
-        origins, directions = self.rays.origins[near], self.rays.directions[near]
+        x, rays = shape.parts[k], self.rays
         if coordinate in SIDES and not shape.rounded[k]:
             axis = 3 + coordinate // 2
             region = moved(moved(x, coordinate, hi), coordinate ^ 1, -(x[axis] + lo) + 1e-4)
-            return forward.crossing(origins, directions, region, self.table)
+            return rays.crossing(region, self.table, near)
         if coordinate == TOP and not shape.rounded[k]:
             region = x.copy()
             region[5] = hi - lo + 1e-4
-            return forward.crossing(origins, directions, region, self.table + x[5] + lo)
+            return rays.crossing(region, self.table + x[5] + lo, near)
         region = x.copy()
         if coordinate == YAW:
             region[3] = region[4] = math.hypot(x[3], x[4])
         elif coordinate <= TOP:
             region = moved(x, coordinate, max(hi, 0.0))
-        return forward.crossing(origins, directions, region, self.table)
+        return rays.crossing(region, self.table, near)
 
     def trials(self, fit: Fit, k: int, coordinate: int, xs: np.ndarray, lo: float, hi: float,
                near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -46,19 +46,25 @@ NO_CLIP = np.array([0.0, 0.0, 0.0, 1.0])
 class ZoneRays:
     """Valid zone readings in world coordinates: (n, 3) sensor origins, (n, m, 3) sub-ray
     directions scaled so that t is the perpendicular depth, (n,) measured depths and their
-    model sigmas, metres."""
+    model sigmas, metres; (n, 4, 3) `planes`, each zone's bundle as four planes through its
+    origin that every sub-ray lies behind (`bundle_planes`)."""
 
     origins: np.ndarray
     directions: np.ndarray
     measured: np.ndarray
     sigma: np.ndarray
+    planes: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.planes is None:
+            self.planes = bundle_planes(self.directions)
 
     def __len__(self) -> int:
         return len(self.measured)
 
     def take(self, keep: np.ndarray) -> ZoneRays:
         return ZoneRays(self.origins[keep], self.directions[keep], self.measured[keep],
-                        self.sigma[keep])
+                        self.sigma[keep], self.planes[keep])
 
     @staticmethod
     def concatenate(parts: list[ZoneRays], m: int) -> ZoneRays:
@@ -66,6 +72,41 @@ class ZoneRays:
             return ZoneRays(np.zeros((0, 3)), np.zeros((0, m, 3)), np.zeros(0), np.zeros(0))
         return ZoneRays(*(np.concatenate([getattr(p, f.name) for p in parts])
                           for f in dc.fields(ZoneRays)))
+
+    def crossing(self, x: np.ndarray, floor: float, rows: np.ndarray | None = None
+                 ) -> np.ndarray:
+        """(len(rows), m) whether each sub-ray of zones `rows` (all if None) passes through
+        box x standing on z = floor (its rounding ignored)."""
+        rows = np.arange(len(self)) if rows is None else rows
+        return crossing(self.origins, self.directions, self.planes, rows, x, floor)
+
+
+def bundle_planes(directions: np.ndarray) -> np.ndarray:
+    """(n, 4, 3) normals of four planes through each zone's origin with every one of its
+    sub-rays `directions` (n, m, 3) on their non-positive side: the sides of the rectangle
+    that bounds the sub-rays' gnomonic projection about their mean direction, aligned with
+    the first row of a k x k grid. A box whose corners all lie beyond one plane meets none of
+    the zone's sub-rays, which `crossing` and `shape_depths` then skip."""
+    n, m = directions.shape[:2]
+    if n == 0:
+        return np.zeros((0, 4, 3))
+    unit = directions / np.linalg.norm(directions, axis=2, keepdims=True)
+    u = unit.mean(axis=1)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    k = max(math.isqrt(m), 1)
+    row = unit[:, k - 1] - unit[:, 0] if k > 1 else np.zeros((n, 3))
+    row -= np.sum(row * u, axis=1, keepdims=True) * u
+    fallback = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    row = np.where(np.linalg.norm(row, axis=1, keepdims=True) > 1e-9, row, fallback)
+    e1 = row / np.linalg.norm(row, axis=1, keepdims=True)
+    e2 = np.cross(u, e1)
+    along = np.einsum("nmj,nj->nm", unit, u)
+    a = np.einsum("nmj,nj->nm", unit, e1) / along
+    b = np.einsum("nmj,nj->nm", unit, e2) / along
+    slack = 1e-9
+    lo_a, hi_a = a.min(axis=1)[:, None] - slack, a.max(axis=1)[:, None] + slack
+    lo_b, hi_b = b.min(axis=1)[:, None] - slack, b.max(axis=1)[:, None] + slack
+    return np.stack([lo_a * u - e1, e1 - hi_a * u, lo_b * u - e2, e2 - hi_b * u], axis=1)
 
 
 def zone_rays(frame: ToFFrame, X_WS: np.ndarray, model: SensorModelParams) -> ZoneRays:
@@ -187,18 +228,25 @@ def table_depths(origins, directions, table, extent):
 
 
 @numba.njit(cache=True)
-def shape_depths(origins, directions, parts, solid, base, table, clip):
+def shape_depths(origins, directions, planes, parts, solid, base, table, clip):
     """(n, m) each sub-ray's depth to the shape (`parts`, `solid` their kinds; the clip plane
-    cuts the solids) or the table (`base`)."""
+    cuts the solids) or the table (`base`); a part a zone's bundle (`planes`) misses is not
+    cast for its sub-rays."""
     n, m, k = directions.shape[0], directions.shape[1], parts.shape[0]
     out = np.empty((n, m))
     t0, t1 = np.empty(k), np.empty(k)
+    hit = np.empty(k, np.bool_)
     cs, sn = np.cos(parts[:, 2]), np.sin(parts[:, 2])
     for i in range(n):
+        for p in range(k):
+            hit[p] = not _misses(origins[i], planes[i], parts[p], cs[p], sn[p], table)
         for j in range(m):
             for p in range(k):
-                t0[p], t1[p] = _interval(origins[i], directions[i, j], parts[p], cs[p], sn[p],
-                                         table, clip if solid[p] else NO_CLIP)
+                if hit[p]:
+                    t0[p], t1[p] = _interval(origins[i], directions[i, j], parts[p], cs[p],
+                                             sn[p], table, clip if solid[p] else NO_CLIP)
+                else:
+                    t0[p], t1[p] = np.inf, -np.inf
             out[i, j] = _visible(t0, t1, solid, base[i, j])
     return out
 
@@ -257,17 +305,41 @@ def zone_losses(depths, measured, sigma, min_count, gap_m, slope, merge_m, stron
 
 
 @numba.njit(cache=True)
-def crossing(origins, directions, x, floor):
-    """(n, m) whether each sub-ray passes through box x standing on z = floor (its rounding
-    ignored)."""
+def _misses(o, planes, x, c, s, floor):
+    """Whether box x (yaw cosine c, sine s) standing on z = floor lies wholly beyond one of a
+    zone's bundle `planes` (4, 3) through its origin o, so that none of its sub-rays meets
+    it."""
+    for i in range(4):
+        beyond = True
+        for corner in range(8):
+            u = (0.5 if corner & 1 else -0.5) * x[3]
+            v = (0.5 if corner & 2 else -0.5) * x[4]
+            px = x[0] + c * u - s * v - o[0]
+            py = x[1] + s * u + c * v - o[1]
+            pz = floor + (x[5] if corner & 4 else 0.0) - o[2]
+            if planes[i, 0] * px + planes[i, 1] * py + planes[i, 2] * pz <= 1e-9:
+                beyond = False
+                break
+        if beyond:
+            return True
+    return False
+
+
+@numba.njit(cache=True)
+def crossing(origins, directions, planes, rows, x, floor):
+    """(len(rows), m) whether each sub-ray of zones `rows` passes through box x standing on
+    z = floor (its rounding ignored); a zone whose bundle misses the box is not cast."""
     box = x.copy()
     box[6:] = 0.0
     c, s = math.cos(x[2]), math.sin(x[2])
-    out = np.zeros((origins.shape[0], directions.shape[1]), np.bool_)
-    for i in range(origins.shape[0]):
+    out = np.zeros((rows.shape[0], directions.shape[1]), np.bool_)
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        if _misses(origins[i], planes[i], box, c, s, floor):
+            continue
         for j in range(directions.shape[1]):
             t0, t1 = _interval(origins[i], directions[i, j], box, c, s, floor, NO_CLIP)
-            out[i, j] = t0 <= t1 and t1 > 0.0
+            out[r, j] = t0 <= t1 and t1 > 0.0
     return out
 
 

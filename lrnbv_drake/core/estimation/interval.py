@@ -8,7 +8,6 @@ import math
 
 import numpy as np
 
-from lrnbv_drake.core.estimation import forward
 from lrnbv_drake.core.estimation.fit import Fit, Problem
 from lrnbv_drake.core.estimation.forward import NO_CLIP
 from lrnbv_drake.core.estimation.shape import TOP, Shape, moved, part_of_box
@@ -86,8 +85,7 @@ def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: floa
             slab[4 - i // 2] += 2 * reach
             slab[5] += reach
             bottom = problem.table
-        zones = np.flatnonzero(forward.crossing(problem.rays.origins, problem.rays.directions,
-                                                slab, bottom).any(axis=1))
+        zones = np.flatnonzero(problem.rays.crossing(slab, bottom).any(axis=1))
         base = fit.cost - float(fit.costs[zones].sum())
 
         def cost(trial: Shape, clip: np.ndarray = NO_CLIP, zones=zones, base=base) -> float:
