@@ -14,8 +14,9 @@ from lrnbv_drake.core.estimation import forward
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator, misfit_limit
 from lrnbv_drake.core.estimation.fit import Problem
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
+from lrnbv_drake.core.estimation.interval import intervals, slice_bounds
 from lrnbv_drake.core.estimation.params import EstimationParams
-from lrnbv_drake.core.estimation.shape import Shape
+from lrnbv_drake.core.estimation.shape import Shape, box_shape
 from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 from lrnbv_drake.station.parts import sensor_behaviour
@@ -188,3 +189,21 @@ def test_a_device_the_model_does_not_explain_is_flagged_and_its_interval_widens(
     assert off.misfit_flag and not own.misfit_flag
     assert np.all(off.widths > own.widths)
     assert np.all((off.dims_lower <= true_dims) & (true_dims <= off.dims_upper))
+
+
+def test_the_interval_holds_a_class_the_readings_fit_as_well():
+    """Rendered readings of a can fitted as a box (the class held): the box's own slice of
+    the cost misses the can's size on every dimension, while the interval over the shapes
+    whose cost lies within the same rise, the can's part re-classed among them, holds it."""
+    frames, truth, model = render("{object: {name: can}}")
+    scenario = load_scenario(data="{object: {name: can}}")
+    rays = ZoneRays.concatenate([zone_rays(f, X, model) for f, X in frames], 64)
+    problem = Problem(rays, 0.0, np.array(scenario.cell.table_extent),
+                      ReadingRule.of(model, sensor_behaviour(scenario)), 2.0, 5.0, 0.0005)
+    as_box = problem.refine(problem.evaluate(box_shape(_cell_like(truth), 0.0)), 0.03)
+    assert not as_box.shape.rounded[0]
+
+    def holds(bounds):
+        return (bounds[0] <= truth.dims) & (truth.dims <= bounds[1])
+    assert not np.any(holds(slice_bounds(problem, as_box, 2.71, 0.1, 0.002)))
+    assert np.all(holds(intervals(problem, as_box, 2.71, 0.1, 0.002)))

@@ -68,3 +68,20 @@ def test_bad_thresholds_are_refused():
         BoxStop(StopParams(tolerance=0.0))
     with pytest.raises(ValueError, match="interval_width"):
         BoxStop(StopParams(interval_width=0.0))
+
+
+def test_the_interval_is_read_only_once_the_box_has_held_still():
+    """An estimate's interval (a profile of every side and class) is computed only for the
+    last estimate of a run that held still, not for every estimate the rule looks at."""
+    read = []
+    dims = [(250, 150, 110), (290, 190, 118), (310, 205, 121), (300, 200, 120),
+            (300, 200, 120), (300, 200, 120)]
+    estimates = []
+    for i, d in enumerate(dims):
+        box = OrientedBox(np.zeros(3), np.array(d) / 1000)
+        estimates.append(BoxEstimate(box, None, interval=lambda i=i, box=box: (
+            read.append(i) or (box.dims - 0.0005, box.dims + 0.0005))))
+    dut = BoxStop(StopParams(tolerance=0.005, stable_poses=2, min_poses=1))
+    stops = [dut.update(EstimateTrack(tuple(estimates[:n]))) for n in range(1, 7)]
+    assert [s is not None for s in stops] == [False] * 5 + [True]
+    assert read == [5]

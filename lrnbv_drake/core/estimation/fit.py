@@ -221,20 +221,23 @@ def _volume_scale(r: np.ndarray) -> np.ndarray:
     return np.where(r > 0, share ** (-1 / r.sum()), 1.0)
 
 
-def _classed(problem: Problem, fit: Fit, k: int, span: float) -> Fit:
-    """Part k as the best of a box and the roundings (`ROUNDINGS`; a hole: a box or an
-    upright cylinder), each searched within `span` from the part of the same volume."""
-    best = None
+def classings(problem: Problem, fit: Fit, k: int, span: float) -> list[Fit]:
+    """Part k as a box and as each rounding (`ROUNDINGS`; a hole: a box or an upright
+    cylinder), each searched within `span` from the part of the same volume."""
+    out = []
     shape = fit.shape
     for r in (None, *(ROUNDINGS if shape.solid[k] else ROUNDINGS[:1])):
         x = np.r_[shape.parts[k][:6], (0, 0, 0) if r is None else r]
         if r is not None and not shape.rounded[k]:
             x[3:6] *= _volume_scale(np.array(r))
         trial = problem.evaluate(shape.with_part(k, x, rounded=r is not None))
-        trial = problem.refine(trial, span, only=k, max_sweeps=2)
-        if best is None or problem.score(trial) < problem.score(best):
-            best = trial
-    return best
+        out.append(problem.refine(trial, span, only=k, max_sweeps=2))
+    return out
+
+
+def _classed(problem: Problem, fit: Fit, k: int, span: float) -> Fit:
+    """The best of part k's `classings` by the information criterion."""
+    return min(classings(problem, fit, k, span), key=problem.score)
 
 
 def _grouped(points: np.ndarray) -> np.ndarray:

@@ -1,5 +1,11 @@
 """Each dimension's interval: how far each side of the box moves before the fit's cost
-rises by a set amount (a profile of the same objective the fit minimises)."""
+rises by a set amount (a profile of the same objective the fit minimises), widened to hold
+the box of every other class of a part that the readings fit within the same rise.
+
+The moves hold the shape's class where it is, so they alone would leave out a shape the
+readings explain as well but the information criterion did not afford (a fruit fitted as a
+box 1-2 cm smaller than the ellipsoid it is): which class is right is as uncertain as the
+cost says, not as the criterion's choice says."""
 
 from __future__ import annotations
 
@@ -8,7 +14,7 @@ import math
 
 import numpy as np
 
-from lrnbv_drake.core.estimation.fit import Fit, Problem
+from lrnbv_drake.core.estimation.fit import Fit, Problem, classings
 from lrnbv_drake.core.estimation.forward import NO_CLIP
 from lrnbv_drake.core.estimation.shape import TOP, Shape, moved, part_of_box
 
@@ -61,6 +67,25 @@ def _extended(shape: Shape, direction: np.ndarray, support: float, value: float)
 
 def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: float
               ) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) of the box's length, width and height over the shapes whose cost lies
+    within `rise` of the fit's: the fit's `slice_bounds`, and those of each solid part
+    re-classed (`classings`, searched within a centimetre) that the readings fit within the
+    rise, each to the rise left above its own cost."""
+    lower, upper = slice_bounds(problem, fit, rise, reach, floor)
+    shape = fit.shape
+    for k in range(len(shape.solid)):
+        if not shape.solid[k]:
+            continue
+        for other in classings(problem, fit, k, 0.01):
+            left = fit.cost + rise - other.cost
+            if left > 0.0 and (shape.rounded[k] or other.shape.rounded[k]):  # not the box again
+                low, high = slice_bounds(problem, other, left, reach, floor)
+                lower, upper = np.minimum(lower, low), np.maximum(upper, high)
+    return lower, upper
+
+
+def slice_bounds(problem: Problem, fit: Fit, rise: float, reach: float, floor: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """(lower, upper) of the box's length, width and height: how far each of its sides can
     move in (every solid clipped by it) and out (the solids that reach it extended), the
     rest held, before the cost rises by `rise`, and at least `floor`. Each move

@@ -34,9 +34,11 @@ class BoxStop:
         p, estimates = self.params, track.estimates
         recent = estimates[-(p.stable_poses + 1):]
         if (len(estimates) < max(p.min_poses, p.stable_poses + 1)
-                or any(e is None or e.widths is None for e in recent)):
+                or any(e is None or e.interval is None for e in recent)):
             return None
         spread = np.ptp(np.array([e.box.dims for e in recent]), axis=0)
+        # The interval is read only once the box has held still: it costs a profile of
+        # every side and every class the readings fit as well.
         if not (np.all(spread < p.tolerance) and np.all(recent[-1].widths <= p.interval_width)):
             return None
         return (f"the box held still and is known: every dimension moved less than "
