@@ -23,30 +23,34 @@ shape at random over the reachable table, a paper object at the scenario's place
 from __future__ import annotations
 
 import argparse
-import dataclasses as dc
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
 from lrnbv_drake.core.evaluation.objects import PAPER_OBJECTS
 from lrnbv_drake.core.mapping.extraction import extract_object
-from lrnbv_drake.experiments.campaign.plan import FAMILY_PLACEMENT, trial_streams
+from lrnbv_drake.experiments.campaign.plan import (
+    FAMILY_PLACEMENT,
+    CampaignConfig,
+    plan_episodes,
+    resolve_objects,
+)
 from lrnbv_drake.experiments.episode import run_episode
 from lrnbv_drake.station.parts import episode_estimator, extraction_params
 from lrnbv_drake.station.scenario import Scenario, override
 
 
-def placed(name: str, trial: int) -> Scenario:
-    """The scenario of `name`'s trial as the campaigns draw it (seed and placement)."""
-    seed, rng = trial_streams(0, name, trial)
-    scenario = Scenario(seed=seed)
-    if name in PAPER_OBJECTS:
-        x, y, yaw = scenario.object.x, scenario.object.y, scenario.object.yaw_deg
-    else:
-        x, y, yaw = FAMILY_PLACEMENT.sample(rng)
-    return dc.replace(scenario, object=dc.replace(scenario.object, name=name, x=x, y=y,
-                                                  yaw_deg=yaw))
+def scenarios(name: str, placement: str, trials: int) -> list[Scenario]:
+    """`name`'s trials: seed 0, 1, ... at the scenario's placement, or seeded and placed as
+    the campaigns do (`plan_episodes`: a family shape at random over the reachable table)."""
+    if placement == "scenario":
+        return [override(Scenario(seed=trial), {"object": {"name": name}})
+                for trial in range(trials)]
+    config = CampaignConfig(Path(), ("heu",), resolve_objects(name), trials,
+                            placement=None if name in PAPER_OBJECTS else FAMILY_PLACEMENT)
+    return [episode.scenario for episode in plan_episodes(config)]
 
 
 def main() -> None:
@@ -62,9 +66,7 @@ def main() -> None:
     update_ms, final_ms, interval_ms, cells_ms, episode_s = [], [], [], [], []
     worst_mm, inside, flagged = [], [], []
     for name in args.objects.split(","):
-        for trial in range(args.trials):
-            scenario = (placed(name, trial) if args.placement == "campaign" else
-                        override(Scenario(seed=trial), {"object": {"name": name}}))
+        for scenario in scenarios(name, args.placement, args.trials):
             with tempfile.TemporaryDirectory() as out:
                 result = run_episode(override(scenario, {"extraction": {"estimator": "cells"}}),
                                      "heu", out)

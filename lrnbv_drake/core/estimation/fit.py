@@ -221,12 +221,13 @@ def _volume_scale(r: np.ndarray) -> np.ndarray:
     return np.where(r > 0, share ** (-1 / r.sum()), 1.0)
 
 
-def classings(problem: Problem, fit: Fit, k: int, span: float) -> list[Fit]:
-    """Part k as a box and as each rounding (`ROUNDINGS`; a hole: a box or an upright
-    cylinder), each searched within `span` from the part of the same volume."""
+def classings(problem: Problem, fit: Fit, k: int, span: float, box: bool = True
+              ) -> list[Fit]:
+    """Part k as a box (unless not `box`) and as each rounding (`ROUNDINGS`; a hole: a box
+    or an upright cylinder), each searched within `span` from the part of the same volume."""
     out = []
     shape = fit.shape
-    for r in (None, *(ROUNDINGS if shape.solid[k] else ROUNDINGS[:1])):
+    for r in ((None,) if box else ()) + (ROUNDINGS if shape.solid[k] else ROUNDINGS[:1]):
         x = np.r_[shape.parts[k][:6], (0, 0, 0) if r is None else r]
         if r is not None and not shape.rounded[k]:
             x[3:6] *= _volume_scale(np.array(r))

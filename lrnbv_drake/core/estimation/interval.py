@@ -76,9 +76,10 @@ def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: floa
     for k in range(len(shape.solid)):
         if not shape.solid[k]:
             continue
-        for other in classings(problem, fit, k, 0.01):
+        # A box part's own class is the fit: only a rounded part is tried as a box.
+        for other in classings(problem, fit, k, 0.01, box=shape.rounded[k]):
             left = fit.cost + rise - other.cost
-            if left > 0.0 and (shape.rounded[k] or other.shape.rounded[k]):  # not the box again
+            if left > 0.0:
                 low, high = slice_bounds(problem, other, left, reach, floor)
                 lower, upper = np.minimum(lower, low), np.maximum(upper, high)
     return lower, upper
