@@ -14,6 +14,7 @@ import os
 import sys
 from pathlib import Path
 
+import numba
 import numpy as np
 import pytest
 
@@ -113,7 +114,7 @@ class FakeEpisodes:
             "object_pose": [scenario.object.x, scenario.object.y, scenario.object.yaw_deg],
             "seed": scenario.seed, "termination": "synthetic", "poses": [],
             "motion_failures": [], "timing": {"wall_seconds": 1.0 + trial},
-            "scenario": "", "pid": os.getpid(),
+            "scenario": "", "pid": os.getpid(), "numba_threads": numba.get_num_threads(),
         }
         metrics = synthetic_metrics(planner, obj, trial)
         report["n_poses"] = metrics["n_poses"]
@@ -514,6 +515,14 @@ def test_object_sets(tmp_path):
 # ---------------------------------------------------------------- Ray
 
 
+def test_local_processes_share_the_cores_among_their_numba_threads(tmp_path):
+    config = _config(tmp_path, names=("vertical_box",), trials=1, jobs=2)
+    records = run_campaign(config, _fake(config), progress=False)
+    assert [r["campaign"]["status"] for r in records] == ["ok"] * 3
+    assert all(r["pid"] != os.getpid() for r in records)
+    assert {r["numba_threads"] for r in records} == {max(1, os.cpu_count() // 2)}
+
+
 def test_ray_backend_runs_the_same_episodes(tmp_path):
     ray = pytest.importorskip("ray", reason="the 'ray' extra is not installed")
     # Ray's workers cannot import this test module: send the fake by value.
@@ -529,6 +538,7 @@ def test_ray_backend_runs_the_same_episodes(tmp_path):
         f"{p}__vertical_box__{t}" for t in range(2) for p in ALL_PLANNERS]
     assert [r["campaign"]["status"] for r in records] == ["ok"] * 6
     assert all(r["pid"] != os.getpid() for r in records)  # they ran in Ray's workers
+    assert all(r["numba_threads"] == 1 for r in records)  # a task holds one CPU
     assert [r["metrics"] for r in records] == [  # rounded as report.json is
         rounded(synthetic_metrics(p, "vertical_box", t)) for t in range(2) for p in ALL_PLANNERS]
     rows = _csv(config.out_dir / "results.csv")

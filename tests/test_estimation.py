@@ -4,6 +4,7 @@ cell renders (Drake's renderer and the simulated device, not the estimator's ray
 
 import math
 
+import numba
 import numpy as np
 import pytest
 from rendered_views import NOISE_FREE, render
@@ -16,7 +17,7 @@ from lrnbv_drake.core.estimation.fit import Problem
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.interval import intervals, slice_bounds
 from lrnbv_drake.core.estimation.params import EstimationParams
-from lrnbv_drake.core.estimation.shape import Shape, box_shape
+from lrnbv_drake.core.estimation.shape import Shape, box_shape, moved
 from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 from lrnbv_drake.station.parts import sensor_behaviour
@@ -115,6 +116,40 @@ def test_a_zone_bundle_culls_only_boxes_none_of_its_sub_rays_meets():
             forward.shape_depths(rays.origins, rays.directions, cast_all, parts, solid,
                                  base, 0.0, forward.NO_CLIP))
     assert met > 0 and missed > 0  # zones both sides of the cull
+
+
+def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads():
+    """`Problem.trials` (one kernel call for a grid of one coordinate, re-casting only the
+    sub-rays the grid can change) gives each candidate's zone losses as `evaluate` of that
+    shape does, and the same bits on one thread as on every thread."""
+    frames, truth, model = render("{object: {name: mug}}")
+    scenario = load_scenario(data="{object: {name: mug}}")
+    rays = ZoneRays.concatenate([zone_rays(f, X, model) for f, X in frames], 64)
+    problem = Problem(rays, 0.0, np.array(scenario.cell.table_extent),
+                      ReadingRule.of(model, sensor_behaviour(scenario)), 2.0, 5.0, 0.0005)
+    body = box_shape(truth, 0.0).parts[0]
+    body[6:] = (1, 1, 0)  # an upright cylinder, and a box part beside it
+    shape = Shape(np.array([body, [*truth.center[:2] + 0.05, 0.3, 0.03, 0.02, 0.05, 0, 0, 0]]),
+                  (True, True), (True, False))
+    fit = problem.evaluate(shape)
+    near = np.arange(len(problem))
+    for k, coordinate, grid in ((0, 1, 0.004 * np.arange(-3, 4)), (0, 8, 0.15 * np.arange(7)),
+                                (1, 4, 0.004 * np.arange(-3, 4)), (1, 5, 0.1 * np.arange(-3, 4))):
+        xs = np.array([moved(shape.parts[k], coordinate, g) for g in grid])
+        runs = []
+        for threads in (1, numba.config.NUMBA_NUM_THREADS):
+            numba.set_num_threads(threads)
+            runs.append(problem.trials(fit, k, coordinate, xs, grid[0], grid[-1], near))
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        (zones, losses), (zones_all, losses_all) = runs
+        assert len(zones) > 0
+        assert np.array_equal(zones, zones_all) and np.array_equal(losses, losses_all)
+        for x, row in zip(xs, losses, strict=True):
+            alone = problem.evaluate(shape.with_part(k, x)).costs
+            np.testing.assert_allclose(row, alone[zones], rtol=1e-12, atol=1e-12)
+            # Every zone left out keeps its loss.
+            others = np.setdiff1d(near, zones)
+            np.testing.assert_allclose(alone[others], fit.costs[others], rtol=1e-12, atol=1e-12)
 
 
 def test_the_forward_model_predicts_what_drakes_renderer_and_the_device_read():

@@ -227,17 +227,18 @@ def table_depths(origins, directions, table, extent):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def shape_depths(origins, directions, planes, parts, solid, base, table, clip):
     """(n, m) each sub-ray's depth to the shape (`parts`, `solid` their kinds; the clip plane
     cuts the solids) or the table (`base`); a part a zone's bundle (`planes`) misses is not
-    cast for its sub-rays."""
+    cast for its sub-rays. Zones are cast in parallel, each alone, so the result does not
+    depend on the threads."""
     n, m, k = directions.shape[0], directions.shape[1], parts.shape[0]
     out = np.empty((n, m))
-    t0, t1 = np.empty(k), np.empty(k)
-    hit = np.empty(k, np.bool_)
     cs, sn = np.cos(parts[:, 2]), np.sin(parts[:, 2])
-    for i in range(n):
+    for i in numba.prange(n):
+        t0, t1 = np.empty(k), np.empty(k)
+        hit = np.empty(k, np.bool_)
         for p in range(k):
             hit[p] = not _misses(origins[i], planes[i], parts[p], cs[p], sn[p], table)
         for j in range(m):
@@ -325,7 +326,7 @@ def _misses(o, planes, x, c, s, floor):
     return False
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def crossing(origins, directions, planes, rows, x, floor):
     """(len(rows), m) whether each sub-ray of zones `rows` passes through box x standing on
     z = floor (its rounding ignored); a zone whose bundle misses the box is not cast."""
@@ -333,7 +334,7 @@ def crossing(origins, directions, planes, rows, x, floor):
     box[6:] = 0.0
     c, s = math.cos(x[2]), math.sin(x[2])
     out = np.zeros((rows.shape[0], directions.shape[1]), np.bool_)
-    for r in range(rows.shape[0]):
+    for r in numba.prange(rows.shape[0]):
         i = rows[r]
         if _misses(origins[i], planes[i], box, c, s, floor):
             continue
@@ -343,25 +344,26 @@ def crossing(origins, directions, planes, rows, x, floor):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def grid_costs(origins, directions, measured, sigma, zones, starts, subrays, parts, solid,
                k, xs, depths, base, table, min_count, gap_m, slope, merge_m, strongest,
                merged_mode, scale, no_return):
     """(len(xs), len(zones)) each zone's loss with part k at each candidate xs[n]: a grid of
     one coordinate in one call. Only the sub-rays `subrays[starts[z]:starts[z + 1]]` of zone
-    z can change (they cross what the grid moves); the others keep `depths`."""
+    z can change (they cross what the grid moves); the others keep `depths`. Zones are
+    costed in parallel, each alone, so the result does not depend on the threads."""
     m, n_parts = directions.shape[1], parts.shape[0]
     out = np.empty((xs.shape[0], zones.shape[0]))
-    work = np.empty(3 * m + 4)
-    d = np.empty(m)
-    t0, t1 = np.empty(n_parts), np.empty(n_parts)
     fixed0 = np.empty((subrays.shape[0], n_parts))
     fixed1 = np.empty((subrays.shape[0], n_parts))
     merged = merge_m > 0.0 and merged_mode == 0
     cs, sn = np.cos(parts[:, 2]), np.sin(parts[:, 2])
     xc, xsn = np.cos(xs[:, 2]), np.sin(xs[:, 2])
-    for z in range(zones.shape[0]):
+    for z in numba.prange(zones.shape[0]):
         i = zones[z]
+        work = np.empty(3 * m + 4)
+        d = np.empty(m)
+        t0, t1 = np.empty(n_parts), np.empty(n_parts)
         for a in range(starts[z], starts[z + 1]):
             for p in range(n_parts):
                 if p != k:

@@ -14,6 +14,7 @@ import contextlib
 import logging
 import math
 import multiprocessing
+import os
 import signal
 import threading
 import time
@@ -22,6 +23,8 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
+
+import numba
 
 from lrnbv_drake.experiments.campaign.plan import BACKENDS, CampaignConfig, CampaignError, Episode
 from lrnbv_drake.experiments.episode import make_meshcat, run_episode
@@ -80,6 +83,13 @@ def sigint_ignored() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
+def execute_on_one_thread(episode: Episode, out_dir: Path, episode_fn: EpisodeFn
+                          ) -> dict[str, Any]:
+    """`execute` with the numba kernels on one thread: a Ray task holds one CPU."""
+    numba.set_num_threads(1)
+    return execute(episode, out_dir, episode_fn)
+
+
 def _run_serial(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
                 config: CampaignConfig) -> Iterator[dict[str, Any]]:
     for episode in todo:
@@ -88,9 +98,12 @@ def _run_serial(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
 
 def _run_processes(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
                    config: CampaignConfig) -> Iterator[dict[str, Any]]:
-    # 'spawn': a forked child would inherit Drake's threads and locks mid-state.
+    # 'spawn': a forked child would inherit Drake's threads and locks mid-state. The numba
+    # kernels' threads are shared out, so that the workers do not oversubscribe the cores.
+    threads = min(max(1, (os.cpu_count() or 1) // config.jobs), numba.config.NUMBA_NUM_THREADS)
     pool = ProcessPoolExecutor(max_workers=config.jobs,
-                               mp_context=multiprocessing.get_context("spawn"))
+                               mp_context=multiprocessing.get_context("spawn"),
+                               initializer=numba.set_num_threads, initargs=(threads,))
     try:
         # The workers start on submit: they ignore Ctrl-C, so that only this process hears it.
         with sigint_ignored():
@@ -127,7 +140,7 @@ def _run_ray(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
     pending: dict[Any, Episode] = {}
     try:
         # No Ray retries: a failure is recorded, and the next run of the command retries it.
-        task = ray.remote(num_cpus=1, max_retries=0)(execute)
+        task = ray.remote(num_cpus=1, max_retries=0)(execute_on_one_thread)
         pending = {task.remote(ep, out_dir, episode_fn): ep for ep in todo}
         while pending:
             (done,), _ = ray.wait(list(pending), num_returns=1)
