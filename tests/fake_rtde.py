@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses as dc
+import itertools
 import os
 import sys
 import threading
@@ -109,6 +110,12 @@ class FakeArm:
         self.block_seconds = 5.0
         self.on_servo: Callable[[FakeArm, np.ndarray], None] | None = None
         self._stale: dict[str, list[float]] = {}
+        # One per client `RtdeRobot` started: ends it as a crash of its process would.
+        self.client_crashes: list[Callable[[], None]] = []
+
+    def crash_client(self) -> None:
+        """The latest ur_rtde client dies (a segfault in the wheel): its pipes close."""
+        self.client_crashes[-1]()
 
     def drop_link(self) -> None:
         """The link goes silent: from now on the client sees the last package."""
@@ -300,16 +307,20 @@ def make_modules(arm: FakeArm) -> dict[str, types.ModuleType]:
     return modules
 
 
-def spawn_in_thread() -> rtde_robot.ClientLink:
+def spawn_in_thread(arm: FakeArm) -> rtde_robot.ClientLink:
     """`rtde_robot.spawn_client`, with the client in a thread of this process (where the
-    fake modules are), over the same kind of pipes."""
+    fake modules are), over the same kind of pipes; `arm.crash_client()` ends it."""
     requests, to_client = os.pipe()
     from_client, answers = os.pipe()
     request_file, answer_file = os.fdopen(requests, "rb"), os.fdopen(answers, "wb")
 
+    crashed: list[bool] = []
+
     def run() -> None:
-        with contextlib.suppress(OSError):  # the test side closed its ends
-            rtde_client.serve(request_file, answer_file)
+        with contextlib.suppress(OSError, ValueError):  # the test side closed its ends
+            # A crashed client reads no further request.
+            rtde_client.serve(itertools.takewhile(lambda line: not crashed, request_file),
+                              answer_file)
         for file in (request_file, answer_file):
             with contextlib.suppress(OSError):
                 file.close()
@@ -318,14 +329,21 @@ def spawn_in_thread() -> rtde_robot.ClientLink:
     thread.start()
     closed = []
 
+    def crash() -> None:  # its answers end now, and its thread at the next request
+        crashed.append(True)
+        with contextlib.suppress(OSError):
+            answer_file.close()
+    arm.client_crashes.append(crash)
+
     def kill() -> None:
         if not closed:
             closed.append(True)
             os.close(to_client)
             os.close(from_client)
 
-    return rtde_robot.ClientLink(to_client, from_client, kill,
-                                 lambda: None if thread.is_alive() else "ended")
+    return rtde_robot.ClientLink(
+        to_client, from_client, kill,
+        lambda: "crashed" if crashed else None if thread.is_alive() else "ended")
 
 
 def install(monkeypatch, arm: FakeArm) -> None:
@@ -333,5 +351,5 @@ def install(monkeypatch, arm: FakeArm) -> None:
     `RtdeRobot` run its client in this process."""
     for name, module in make_modules(arm).items():
         monkeypatch.setitem(sys.modules, name, module)
-    monkeypatch.setattr(rtde_robot, "spawn_client", spawn_in_thread)
+    monkeypatch.setattr(rtde_robot, "spawn_client", lambda: spawn_in_thread(arm))
 

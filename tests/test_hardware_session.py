@@ -282,7 +282,7 @@ def test_a_report_that_fails_after_motion_is_not_called_nothing_moved(
 
     def broken_report(*args, **kwargs):
         raise ValueError("the catalogue changed under the session")
-    monkeypatch.setattr(session, "_report", broken_report)
+    monkeypatch.setattr(session, "episode_report", broken_report)
     out = tmp_path / "out"
     assert _hardware_heu(tmp_path, out) == 1
     err = capsys.readouterr().err
@@ -380,8 +380,13 @@ def test_resume_takes_a_corrected_catalogue_and_refuses_a_preset(stopped, tmp_pa
     catalogue = tmp_path / "boxes.yaml"
     catalogue.write_text("containers: [{name: only, inner: [0.5, 0.5, 0.5]}]\n")
     used = []
-    monkeypatch.setattr(session, "_run", lambda scenario, *args: used.append(scenario))
-    resume(copy, confirm=lambda text: True, containers=str(catalogue))
+
+    def stop_at_the_first_check(scenario):
+        used.append(scenario)
+        raise SessionError("stopped by the test")
+    monkeypatch.setattr(session, "check_hardware_config", stop_at_the_first_check)
+    with pytest.raises(SessionError, match="stopped by the test"):
+        resume(copy, confirm=lambda text: True, containers=str(catalogue))
     assert used[0].packing.containers == str(catalogue)
     assert main(["hardware", "--resume", str(copy), "--preset", "paper"]) == 2
     assert "drop --preset" in capsys.readouterr().err

@@ -216,15 +216,18 @@ faulthandler.register(signal.SIGUSR1, all_threads=True)  # where it is, should i
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.core.acquisition import AcquisitionSequencer
 
-record = AcquisitionSequencer._record
+step = AcquisitionSequencer.step
 
-def record_and_hold(self, s, *args):
-    record(self, s, *args)
-    print(f"captured {len(s.log.acquisitions)}", flush=True)
-    if len(s.log.acquisitions) == 2:
-        time.sleep(600)
+def step_and_hold(self, state, *args):
+    before = len(state.log.acquisitions)
+    state = step(self, state, *args)
+    if len(state.log.acquisitions) > before:
+        print(f"captured {len(state.log.acquisitions)}", flush=True)
+        if len(state.log.acquisitions) == 2:
+            time.sleep(600)
+    return state
 
-AcquisitionSequencer._record = record_and_hold
+AcquisitionSequencer.step = step_and_hold
 sys.exit(main())
 """
 

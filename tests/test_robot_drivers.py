@@ -187,7 +187,7 @@ def test_a_crashed_client_is_a_lost_link(monkeypatch):
     arm = fake_rtde.FakeArm(HOME)
     fake_rtde.install(monkeypatch, arm)
     robot = RtdeRobot("10.0.0.5")
-    robot._link.kill()  # as if ur_rtde had crashed the client process
+    arm.crash_client()
     status = read_status(robot, 0.1, ok_status())
     assert status.fault().kind == "disconnected" and "client" in status.error
     # ur_rtde may have uploaded its script again before crashing: a fresh client stops it
