@@ -80,6 +80,9 @@ class Problem:
         # chosen there, so beyond it nothing in the fit would bound a part.
         self.region = region
         self.base = forward.table_depths(rays.origins, rays.directions, table, extent)
+        # `reclassed` results by (id(fit), k, rounding, span), each with its fit, so that
+        # the interval takes the class move's refits of the same fit rather than redo them.
+        self._reclassed: dict[tuple, tuple[Fit, Fit]] = {}
 
     def inside(self, xs: np.ndarray) -> np.ndarray:
         """(len(xs),) whether each part's box lies within the region."""
@@ -163,6 +166,22 @@ class Problem:
             np.array(s.solid), k, xs, fit.depths, self.base, self.table, *self.rule.args(),
             *self.loss)
 
+    def reclassed(self, fit: Fit, k: int, rounding: tuple[float, float, float] | None,
+                  span: float) -> Fit:
+        """Part k of `fit` as a box (`rounding` None) or with `rounding`, from the part of
+        the same volume, searched within `span` (two sweeps of its coordinates)."""
+        key = (id(fit), k, rounding, span)
+        if key in self._reclassed and self._reclassed[key][0] is fit:
+            return self._reclassed[key][1]
+        shape = fit.shape
+        x = np.r_[shape.parts[k][:6], (0, 0, 0) if rounding is None else rounding]
+        if rounding is not None and not shape.rounded[k]:
+            x[3:6] *= _volume_scale(np.array(rounding))
+        trial = self.evaluate(shape.with_part(k, x, rounded=rounding is not None))
+        out = self.refine(trial, span, only=k, max_sweeps=2)
+        self._reclassed[key] = (fit, out)
+        return out
+
     def refine(self, fit: Fit, span: float, only: int | None = None, max_sweeps: int = 4
                ) -> Fit:
         """A coordinate search of every part (or part `only`): each coordinate on a grid of
@@ -225,15 +244,8 @@ def classings(problem: Problem, fit: Fit, k: int, span: float, box: bool = True
               ) -> list[Fit]:
     """Part k as a box (unless not `box`) and as each rounding (`ROUNDINGS`; a hole: a box
     or an upright cylinder), each searched within `span` from the part of the same volume."""
-    out = []
-    shape = fit.shape
-    for r in ((None,) if box else ()) + (ROUNDINGS if shape.solid[k] else ROUNDINGS[:1]):
-        x = np.r_[shape.parts[k][:6], (0, 0, 0) if r is None else r]
-        if r is not None and not shape.rounded[k]:
-            x[3:6] *= _volume_scale(np.array(r))
-        trial = problem.evaluate(shape.with_part(k, x, rounded=r is not None))
-        out.append(problem.refine(trial, span, only=k, max_sweeps=2))
-    return out
+    roundings = ROUNDINGS if fit.shape.solid[k] else ROUNDINGS[:1]
+    return [problem.reclassed(fit, k, r, span) for r in ((None,) if box else ()) + roundings]
 
 
 def _classed(problem: Problem, fit: Fit, k: int, span: float) -> Fit:
