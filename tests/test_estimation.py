@@ -136,11 +136,13 @@ def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads()
     for k, coordinate, grid in ((0, 1, 0.004 * np.arange(-3, 4)), (0, 8, 0.15 * np.arange(7)),
                                 (1, 4, 0.004 * np.arange(-3, 4)), (1, 5, 0.1 * np.arange(-3, 4))):
         xs = np.array([moved(shape.parts[k], coordinate, g) for g in grid])
-        runs = []
-        for threads in (1, numba.config.NUMBA_NUM_THREADS):
-            numba.set_num_threads(threads)
-            runs.append(problem.trials(fit, k, coordinate, xs, grid[0], grid[-1], near))
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        runs, before = [], numba.get_num_threads()
+        try:
+            for threads in (1, numba.config.NUMBA_NUM_THREADS):
+                numba.set_num_threads(threads)
+                runs.append(problem.trials(fit, k, coordinate, xs, grid[0], grid[-1], near))
+        finally:
+            numba.set_num_threads(before)
         (zones, losses), (zones_all, losses_all) = runs
         assert len(zones) > 0
         assert np.array_equal(zones, zones_all) and np.array_equal(losses, losses_all)
