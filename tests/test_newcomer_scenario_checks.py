@@ -173,3 +173,29 @@ def test_surface_sampling_refuses_a_mesh_far_too_large():
         objects.sample_surface(cube, 0.005, exclude_bottom=False)
     assert objects.MAX_SURFACE_SAMPLES < 54 / 0.005**2
     assert len(objects.sample_surface(cube, 0.01, exclude_bottom=False)) == 540_000
+
+
+@pytest.mark.parametrize("section, field, bad", [
+    ("mapping", "insertion", "cones"), ("extraction", "estimator", "model"),
+    ("planner", "stop", "early")])
+def test_a_scenario_built_in_code_is_checked_where_an_episode_or_a_refit_starts(
+        heu_run, section, field, bad):
+    """A scenario made with dataclasses.replace skips the loader's checks: the episode's
+    builder and the refit run them, before anything is made, naming the field."""
+    from lrnbv_drake.experiments.episode import build_episode
+    from lrnbv_drake.experiments.refit import load_episode, refit
+
+    scenario = Scenario()
+    part = getattr(scenario, section)
+    if field == "stop":
+        part = dc.replace(part, stop=dc.replace(part.stop, rule=bad))
+        path = "planner.stop.rule"
+    else:
+        part = dc.replace(part, **{field: bad})
+        path = f"{section}.{field}"
+    scenario = dc.replace(scenario, **{section: part})
+    for start in (lambda: build_episode(scenario, "lrnbv"),
+                  lambda: refit(load_episode(heu_run), scenario)):
+        with pytest.raises(ScenarioError, match=f"field '{path}': expected one of .* got "
+                                                f"'{bad}'"):
+            start()

@@ -59,7 +59,7 @@ from lrnbv_drake.station.parts import (
     zone_geometry,
 )
 from lrnbv_drake.station.scenario import Scenario
-from lrnbv_drake.station.scenario_checks import check_placement
+from lrnbv_drake.station.scenario_checks import check_placement, check_ranges
 from lrnbv_drake.systems.acquisition_loop import AcquisitionLoop
 from lrnbv_drake.systems.box_estimation import BoxEstimation
 from lrnbv_drake.systems.object_clustering import ObjectClustering
@@ -107,7 +107,12 @@ def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = No
     With `hardware`, the cell is the real one (`make_cell(..., hardware=True)`); everything
     else is the same diagram. `history` goes to the loop (an episode to carry on); `run_loop`
     restores the map and the policy to match it.
+
+    Raises:
+        ScenarioError: a field out of range or not one of its choices (a scenario built in
+            code, not loaded), before anything is made or connected.
     """
+    check_ranges(scenario)
     cell = make_cell(scenario, meshcat, hardware=hardware)
     try:
         return _around_cell(cell, scenario, planner, meshcat, history)

@@ -34,6 +34,7 @@ from lrnbv_drake.experiments.report import (
 )
 from lrnbv_drake.station.parts import extraction_params, map_system, packing_decision
 from lrnbv_drake.station.scenario import Scenario, recorded_scenario
+from lrnbv_drake.station.scenario_checks import check_ranges
 
 
 class RefitError(ValueError):
@@ -129,7 +130,12 @@ def refit(episode: RecordedEpisode, scenario: Scenario) -> dict[str, Any]:
     """The box, its interval and container from `episode`'s readings under `scenario` (the
     episode's own, or it with a calibrated `sensor:` section, other `estimation:` settings
     or another estimator), with the errors against the truth for a simulated episode. The
-    fields are report.json's."""
+    fields are report.json's.
+
+    Raises:
+        ScenarioError: a field of `scenario` out of range or not one of its choices.
+    """
+    check_ranges(scenario)
     track = estimate_readings(scenario, episode.readings, episode.cell_boxes)
     entry = box_entry(scenario, track.latest)
     out: dict[str, Any] = {
