@@ -131,7 +131,14 @@ def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads()
     body[6:] = (1, 1, 0)  # an upright cylinder, and a box part beside it
     shape = Shape(np.array([body, [*truth.center[:2] + 0.05, 0.3, 0.03, 0.02, 0.05, 0, 0, 0]]),
                   (True, True), (True, False))
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        alone = problem.evaluate(shape)
+    finally:
+        numba.set_num_threads(before)
     fit = problem.evaluate(shape)
+    assert np.array_equal(alone.depths, fit.depths) and np.array_equal(alone.costs, fit.costs)
     near = np.arange(len(problem))
     for k, coordinate, grid in ((0, 1, 0.004 * np.arange(-3, 4)), (0, 8, 0.15 * np.arange(7)),
                                 (1, 4, 0.004 * np.arange(-3, 4)), (1, 5, 0.1 * np.arange(-3, 4))):

@@ -118,6 +118,8 @@ class ShapeEstimator:
         # tried again only once twice as many zones ask for it.
         self._refused: dict[tuple[str, int], int] = {}
         self.last: BoxEstimate | None = None
+        # The last estimate's problem, whose kept refits the next estimate drops.
+        self._last_problem: Problem | None = None
 
     def add(self, frame: ToFFrame, X_WS: np.ndarray) -> None:
         """Stores the valid zones of one acquisition."""
@@ -214,8 +216,18 @@ class ShapeEstimator:
             misfit, flag, table_misfit, table_flag = self._misfits(problem, fit)
         rise = self.params.interval_level * max(1.0, misfit)
         floor = self._pitch(problem) / 2 * math.sqrt(max(1.0, misfit))
+        # The interval may take the search's refits of this fit, no other's, and no earlier
+        # estimate's: a later read of one of those computes them again.
+        problem.forget_reclassed(keep=fit)
+        if self._last_problem is not None:
+            self._last_problem.forget_reclassed()
+        self._last_problem = problem
+
+        def interval() -> tuple[np.ndarray, np.ndarray]:
+            bounds = intervals(problem, fit, rise, self.params.interval_reach, floor)
+            problem.forget_reclassed()
+            return bounds
         self.last = BoxEstimate(
             fit.shape.box(self._table), fit.shape, fit.cost, len(problem), misfit,
-            table_misfit, flag or table_flag,
-            lambda: intervals(problem, fit, rise, self.params.interval_reach, floor))
+            table_misfit, flag or table_flag, interval)
         return self.last

@@ -182,6 +182,12 @@ class Problem:
         self._reclassed[key] = (fit, out)
         return out
 
+    def forget_reclassed(self, keep: Fit | None = None) -> None:
+        """Drops the kept refits (`reclassed`) of every fit but `keep`: an estimate keeps its
+        problem for its interval, read later or never."""
+        self._reclassed = {key: value for key, value in self._reclassed.items()
+                           if value[0] is keep}
+
     def refine(self, fit: Fit, span: float, only: int | None = None, max_sweeps: int = 4
                ) -> Fit:
         """A coordinate search of every part (or part `only`): each coordinate on a grid of

@@ -14,7 +14,6 @@ import contextlib
 import logging
 import math
 import multiprocessing
-import os
 import signal
 import threading
 import time
@@ -83,6 +82,12 @@ def sigint_ignored() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
+def share_cores(jobs: int) -> None:
+    """Gives this worker its share of the CPUs numba may use (those the process may run
+    on), so that `jobs` workers side by side do not oversubscribe them."""
+    numba.set_num_threads(max(1, numba.config.NUMBA_NUM_THREADS // jobs))
+
+
 def execute_on_one_thread(episode: Episode, out_dir: Path, episode_fn: EpisodeFn
                           ) -> dict[str, Any]:
     """`execute` with the numba kernels on one thread: a Ray task holds one CPU."""
@@ -98,12 +103,10 @@ def _run_serial(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
 
 def _run_processes(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
                    config: CampaignConfig) -> Iterator[dict[str, Any]]:
-    # 'spawn': a forked child would inherit Drake's threads and locks mid-state. The numba
-    # kernels' threads are shared out, so that the workers do not oversubscribe the cores.
-    threads = min(max(1, (os.cpu_count() or 1) // config.jobs), numba.config.NUMBA_NUM_THREADS)
+    # 'spawn': a forked child would inherit Drake's threads and locks mid-state.
     pool = ProcessPoolExecutor(max_workers=config.jobs,
                                mp_context=multiprocessing.get_context("spawn"),
-                               initializer=numba.set_num_threads, initargs=(threads,))
+                               initializer=share_cores, initargs=(config.jobs,))
     try:
         # The workers start on submit: they ignore Ctrl-C, so that only this process hears it.
         with sigint_ignored():
