@@ -329,10 +329,13 @@ def spawn_in_thread(arm: FakeArm) -> rtde_robot.ClientLink:
     thread.start()
     closed = []
 
-    def crash() -> None:  # its answers end now, and its thread at the next request
+    def crash() -> None:  # its answers end, and a line wakes it to end its thread and keeper
         crashed.append(True)
         with contextlib.suppress(OSError):
             answer_file.close()
+        with contextlib.suppress(OSError):  # one line, atomic beside the driver's requests
+            os.write(to_client, b"\n")
+        thread.join(timeout=5.0)
     arm.client_crashes.append(crash)
 
     def kill() -> None:
