@@ -1,11 +1,13 @@
 """The packing decision (core/evaluation/packing.py, and its margin in experiments/report.py) on
 hand-worked cases."""
 
+import dataclasses as dc
+
 import numpy as np
 import pytest
 
 from lrnbv_drake.core.boxes import OrientedBox
-from lrnbv_drake.core.estimation.estimator import BoxEstimate
+from lrnbv_drake.core.estimation.estimator import BoxEstimate, confidence
 from lrnbv_drake.core.evaluation.packing import (
     CatalogueError,
     Container,
@@ -129,16 +131,20 @@ def test_the_margin_is_the_intervals_outer_half_and_a_wider_interval_takes_a_lar
     `packing.fixed_margin`."""
     scenario = Scenario()
     box = OrientedBox(np.array([0.5, 0.0, 0.0185]), np.array([0.134, 0.124, 0.037]))
-    narrow = BoxEstimate(box, None, interval=lambda: (box.dims - 0.01,
-                                                      np.array([0.151, 0.141, 0.04])))
-    wide = BoxEstimate(box, None, misfit_flag=True,
+    narrow = BoxEstimate(box, None, confidence=confidence(2.71),
+                         interval=lambda: (box.dims - 0.01, np.array([0.151, 0.141, 0.04])))
+    wide = BoxEstimate(box, None, misfit_flag=True, confidence=confidence(2.71),
                        interval=lambda: (box.dims - 0.01, np.array([0.2, 0.2, 0.05])))
     decided = packing_decision(scenario, narrow)
     np.testing.assert_allclose(decided.margin, [0.017, 0.017, 0.003], atol=1e-12)
     widened = packing_decision(scenario, wide)
     assert np.prod(widened.container.inner) > np.prod(decided.container.inner)
     assert "widened by the readings' misfit" in widened.margin_from
-    assert "widened" not in decided.margin_from
+    assert decided.margin_from == "the estimate's 90 % profile interval"
+    # A rise of 3.84 (`estimation.interval_level`) is a 95 % interval, and says so.
+    wider_level = dc.replace(narrow, confidence=confidence(3.84))
+    assert packing_decision(scenario, wider_level).margin_from == (
+        "the estimate's 95 % profile interval")
     cells = packing_decision(scenario, BoxEstimate.of_cells(box))
     np.testing.assert_allclose(cells.margin, [scenario.packing.fixed_margin] * 3)
     assert cells.margin_from == "packing.fixed_margin"

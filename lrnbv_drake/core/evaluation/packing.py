@@ -184,7 +184,7 @@ def container_for(estimate: BoxEstimate, fixed_margin: float, clearance: float,
         margin, source = np.full(3, fixed_margin), "packing.fixed_margin"
     else:
         margin = np.maximum(estimate.dims_upper - box.dims, 0.0)
-        source = "the estimate's 90 % profile interval"
+        source = f"the estimate's {100 * estimate.confidence:.0f} % profile interval"
         if estimate.misfit_flag:
             source += ", widened by the readings' misfit"
     decision = choose_container(box.dims, margin, clearance, catalogue)
