@@ -80,8 +80,9 @@ class Problem:
         # chosen there, so beyond it nothing in the fit would bound a part.
         self.region = region
         self.base = forward.table_depths(rays.origins, rays.directions, table, extent)
-        # `reclassed` results by (id(fit), k, rounding, span), each with its fit, so that
-        # the interval takes the class move's refits of the same fit rather than redo them.
+        # `reclassed` results by (id(fit), k, rounding, span), each with its fit (held, so
+        # that its id is not reused), so that the interval takes the class move's refits of
+        # the same fit rather than redo them.
         self._reclassed: dict[tuple, tuple[Fit, Fit]] = {}
 
     def inside(self, xs: np.ndarray) -> np.ndarray:
@@ -171,7 +172,7 @@ class Problem:
         """Part k of `fit` as a box (`rounding` None) or with `rounding`, from the part of
         the same volume, searched within `span` (two sweeps of its coordinates)."""
         key = (id(fit), k, rounding, span)
-        if key in self._reclassed and self._reclassed[key][0] is fit:
+        if key in self._reclassed:
             return self._reclassed[key][1]
         shape = fit.shape
         x = np.r_[shape.parts[k][:6], (0, 0, 0) if rounding is None else rounding]
