@@ -20,7 +20,11 @@ from pydrake.geometry import (
     SceneGraph,
 )
 from pydrake.math import RigidTransform
-from pydrake.multibody.parsing import LoadModelDirectives, ProcessModelDirectives
+from pydrake.multibody.parsing import (
+    LoadModelDirectives,
+    ModelDirectives,
+    ProcessModelDirectives,
+)
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 from pydrake.multibody.tree import Frame, ModelInstanceIndex
 from pydrake.systems.framework import Diagram, DiagramBuilder
@@ -105,8 +109,11 @@ def apply_visualization(builder: DiagramBuilder, scenario: Scenario, plant: Mult
                              scene_graph=scene_graph, meshcat=meshcat)
 
 
-def add_cell_models(plant: MultibodyPlant, scenario: Scenario) -> CellModels:
+def add_cell_models(plant: MultibodyPlant, scenario: Scenario,
+                    table_offset: float = 0.0) -> CellModels:
     """Adds the robot, table and sensor mount (from the directives) and the object to `plant`.
+    `table_offset` (m) raises the table, and the object resting on it, above where the
+    scenario says it is: a simulated cell off its model (`device.table_offset_mm`).
 
     The object is anchored to the world at its resting pose: it does not move during an episode.
     Its perception (rendered) geometry is the exact mesh; its proximity geometry, which the
@@ -118,10 +125,13 @@ def add_cell_models(plant: MultibodyPlant, scenario: Scenario) -> CellModels:
     directives_path = resolve_url(directives_url)
     if not Path(directives_path).is_file():
         raise ScenarioError(f"field 'cell.directives': no such file '{directives_url}'")
-    ProcessModelDirectives(LoadModelDirectives(directives_path), plant, parser)
+    directives = LoadModelDirectives(directives_path)
+    if table_offset:
+        _raise_table(directives, table_offset)
+    ProcessModelDirectives(directives, plant, parser)
     ur5e = plant.GetModelInstanceByName("ur5e")
 
-    placed = place_object(scenario)
+    placed = place_object(scenario, table_offset)
     mesh_dir = tempfile.TemporaryDirectory(prefix="lrnbv_object_")
     obj_path = Path(mesh_dir.name) / "object.obj"
     objects.export_obj(placed.mesh, obj_path)
@@ -133,23 +143,41 @@ def add_cell_models(plant: MultibodyPlant, scenario: Scenario) -> CellModels:
     return CellModels(ur5e=ur5e, placed_object=placed, mesh_dir=mesh_dir)
 
 
-def place_object(scenario: Scenario) -> objects.PlacedObject:
-    """The scenario's object, loaded and resting on the table at its placement."""
+def _raise_table(directives: ModelDirectives, offset: float) -> None:
+    """Moves the weld that places the model `table` in the world up by `offset` (m)."""
+    welds = [d.add_weld for d in directives.directives
+             if d.add_weld is not None and d.add_weld.parent == "world"
+             and d.add_weld.child.startswith("table::")]
+    carried = [d.add_weld.child for d in directives.directives
+               if d.add_weld is not None and d.add_weld.parent.startswith("table::")]
+    if len(welds) != 1 or carried:
+        raise ScenarioError(
+            "field 'device.table_offset_mm': expected cell.directives to weld one model named "
+            "'table' to the world and nothing to the table, so that it can move alone; got "
+            f"{len(welds)} such welds and {carried or 'nothing'} welded to the table")
+    welds[0].X_PC.translation = welds[0].X_PC.translation + np.array([0.0, 0.0, offset])
+
+
+def place_object(scenario: Scenario, table_offset: float = 0.0) -> objects.PlacedObject:
+    """The scenario's object, loaded and resting on the table at its placement (`table_offset`
+    m above the scenario's table height)."""
     cfg = scenario.object
     mesh = objects.load_object_mesh(cfg.name, cfg.scale)
     placement = objects.ObjectPlacement(x=cfg.x, y=cfg.y, yaw=np.deg2rad(cfg.yaw_deg))
-    return objects.place_on_table(mesh, placement, table_height=scenario.cell.table_height)
+    return objects.place_on_table(mesh, placement,
+                                  table_height=scenario.cell.table_height + table_offset)
 
 
-def add_cell_plant(builder: DiagramBuilder, scenario: Scenario
+def add_cell_plant(builder: DiagramBuilder, scenario: Scenario, table_offset: float = 0.0
                    ) -> tuple[MultibodyPlant, SceneGraph, CellModels]:
     """Adds a SceneGraph to `builder` and makes the cell's finalized plant, registered with it
-    but not added to the builder: nothing integrates it, positions are fed to SceneGraph."""
+    but not added to the builder: nothing integrates it, positions are fed to SceneGraph.
+    `table_offset`: as `add_cell_models`."""
     scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
     plant = MultibodyPlant(time_step=0.0)
     plant.set_name("plant")
     plant.RegisterAsSourceForSceneGraph(scene_graph)
-    models = add_cell_models(plant, scenario)
+    models = add_cell_models(plant, scenario, table_offset)
     plant.Finalize()
     if plant.num_positions() != 6:
         raise ScenarioError(

@@ -9,6 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw
 
 from lrnbv_drake.core.acquisition import SelfFilter
 from lrnbv_drake.core.boxes import AlignedBox
@@ -101,6 +102,12 @@ def device_params(scenario: Scenario) -> SensorModelParams:
                       min_share=model.min_share if d.min_share is None else d.min_share,
                       cluster_gap_mm=(model.cluster_gap_mm if d.cluster_gap_mm is None
                                       else d.cluster_gap_mm))
+
+
+def device_mount(scenario: Scenario) -> RigidTransform:
+    """X_MS: the simulated sensor's true pose in the model's `tof` frame (`device.mount`)."""
+    m = scenario.device.mount
+    return RigidTransform(RollPitchYaw(np.deg2rad(m.rpy_deg)), np.asarray(m.xyz_mm) / 1000)
 
 
 def _zone_centres(directions: str, resolution: int, field: str) -> np.ndarray | None:

@@ -138,6 +138,28 @@ class SensorConfig:
 
 
 @dc.dataclass
+class DeviceMount:
+    """Where the simulated sensor really sits: its pose in the model's `tof` frame (a bracket
+    bolted by hand is off by a degree or two and a few millimetres)."""
+
+    # Offset along the model's tof x, y, z (z: the optical axis), mm.
+    xyz_mm: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    # Turn about the model's tof x, y, z (Drake's roll-pitch-yaw), degrees.
+    rpy_deg: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dc.dataclass
+class DeviceZoneOrder:
+    """The order the simulated board reports its zones in against the model's
+    (core/sensing/zone_order.py): the model's grid flipped, then turned."""
+
+    # Counter-clockwise turn of the grid as printed, degrees: 0, 90, 180 or 270.
+    rotate: int = 0
+    # Mirror before the turn: "none", "rows" (upside down) or "cols".
+    flip: str = "none"
+
+
+@dc.dataclass
 class DeviceConfig:
     """Simulation only: how the simulated VL53L8CX behaves where it should differ from the model
     the software assumes (`sensor:`, what a calibration produces). An unset field takes the
@@ -183,6 +205,12 @@ class DeviceConfig:
     zone_directions: str | None = None
     # Renders a frame integrates over its period (a moving sensor blurs), >= 1.
     integration_steps: int | None = None
+    # The sensor's true pose on the flange against the model's mount.
+    mount: DeviceMount = dc.field(default_factory=DeviceMount)
+    # The board's zone order against the model's.
+    zone_order: DeviceZoneOrder = dc.field(default_factory=DeviceZoneOrder)
+    # The table top (and the object resting on it) above `cell.table_height`, mm.
+    table_offset_mm: float = 0.0
 
 
 @dc.dataclass

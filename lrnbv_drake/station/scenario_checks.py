@@ -32,6 +32,7 @@ from lrnbv_drake.core.sensing.tof_device import (
     TARGET_ORDERS,
 )
 from lrnbv_drake.core.sensing.tof_protocol import RESOLUTIONS
+from lrnbv_drake.core.sensing.zone_order import ZONE_FLIPS, ZONE_ROTATIONS
 from lrnbv_drake.core.strict_yaml import load_yaml
 
 if TYPE_CHECKING:  # scenario.py calls these checks while loading; only the type is needed
@@ -126,6 +127,12 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("device.ambient_klux", _at_least(0)),
     ("device.reported_sigma_spread", _at_least(0)),
     ("device.integration_steps", _at_least(1)),
+    ("device.mount.xyz_mm", _vector(3)),
+    ("device.mount.rpy_deg", _vector(3)),
+    ("device.zone_order.rotate", ((lambda v: v in ZONE_ROTATIONS),
+                                  f"one of {ZONE_ROTATIONS} (degrees counter-clockwise)")),
+    ("device.zone_order.flip", _one_of(*ZONE_FLIPS)),
+    ("device.table_offset_mm", _FINITE),
     ("packing.clearance", _at_least(0)),
     ("packing.fixed_margin", _at_least(0)),
     ("mapping.resolution", _above(0)),

@@ -20,7 +20,12 @@ from lrnbv_drake.station.cell_models import (
     apply_visualization,
     fixed_pose,
 )
-from lrnbv_drake.station.parts import device_params, device_profile, scene_reflectance
+from lrnbv_drake.station.parts import (
+    device_mount,
+    device_params,
+    device_profile,
+    scene_reflectance,
+)
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.systems.sensor_pose import SensorPose
 from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer
@@ -29,7 +34,8 @@ from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer
 def make_sim_cell(scenario: Scenario, meshcat: Meshcat | None = None) -> Cell:
     """Builds the simulated cell (`station.cell` lists its ports)."""
     builder = DiagramBuilder()
-    plant, scene_graph, models = add_cell_plant(builder, scenario)
+    plant, scene_graph, models = add_cell_plant(
+        builder, scenario, table_offset=scenario.device.table_offset_mm / 1000)
     command = builder.AddNamedSystem("ur5e_position", PassThrough(6))
     to_pose = builder.AddNamedSystem("to_geometry_pose", MultibodyPositionToGeometryPose(plant))
     builder.Connect(command.get_output_port(), to_pose.get_input_port())
@@ -41,13 +47,14 @@ def make_sim_cell(scenario: Scenario, meshcat: Meshcat | None = None) -> Cell:
     device = device_profile(scenario)
     sensor = builder.AddNamedSystem("tof", ToFSensor(
         parent_frame_id=plant.GetBodyFrameIdOrThrow(tof_frame.body().index()),
-        X_PS=tof_frame.GetFixedPoseInBodyFrame(),
+        X_PS=tof_frame.GetFixedPoseInBodyFrame() @ device_mount(scenario),
         params=device_params(scenario),
         seed=scenario.seed,
         period=scenario.sensor.period,
         behaviour=device.behaviour,
         reflectance=scene_reflectance(scenario),
         integration_steps=device.integration_steps,
+        zone_order=(scenario.device.zone_order.rotate, scenario.device.zone_order.flip),
     ))
     builder.Connect(scene_graph.get_query_output_port(), sensor.get_input_port())
     pose = builder.AddNamedSystem("tof_pose", SensorPose(

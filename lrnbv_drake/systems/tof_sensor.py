@@ -42,6 +42,11 @@ from lrnbv_drake.core.sensing.tof_device import (
     device_readings,
     illumination_weight,
 )
+from lrnbv_drake.core.sensing.zone_order import (
+    check_zone_order,
+    reorder_frame,
+    restore_frame,
+)
 
 #: Near clipping plane and minimum depth, metres: geometry closer than 5 mm to the sensor is not
 #: rendered. The device's own 20 mm minimum is applied by the sensor model, not here.
@@ -137,8 +142,9 @@ class ToFSensor(LeafSystem):
 
     `geometry_query` connects to `scene_graph.get_query_output_port()`; the SceneGraph needs the
     renderer named `renderer_name` (`add_tof_renderer`). `tof_frame` is the last captured
-    `ToFFrame`, in the geometry's raw zone order. Until the first capture (the periodic event
-    at t = 0) it is an empty frame with sequence 0: consumers must skip sequence 0.
+    `ToFFrame`, in the board's zone order (`zone_order`; by default the model's raw order).
+    Until the first capture (the periodic event at t = 0) it is an empty frame with sequence 0:
+    consumers must skip sequence 0.
 
     Frame n (sequence n) draws its noise from `frame_rng(seed, n)`, so a seed and a scene
     reproduce the same frames whatever else the diagram does.
@@ -161,6 +167,7 @@ class ToFSensor(LeafSystem):
         behaviour: DeviceBehaviour | None = None,
         reflectance: Callable[[np.ndarray], np.ndarray] | None = None,
         integration_steps: int = 1,
+        zone_order: tuple[int, str] = (0, "none"),
     ) -> None:
         """
         Args:
@@ -176,6 +183,8 @@ class ToFSensor(LeafSystem):
             reflectance: reflectance of the surface at world points (n, 3); 0.5 everywhere
                 if not given. Only a `behaviour` with `reflectance` uses it.
             integration_steps: renders per frame period that a frame integrates, >= 1.
+            zone_order: (rotate, flip) of the board's zone order against the model's
+                (`core.sensing.zone_order`); the default reports the model's order.
         """
         super().__init__()
         if seed < 0:
@@ -188,6 +197,8 @@ class ToFSensor(LeafSystem):
         self._behaviour = behaviour if behaviour is not None else DeviceBehaviour()
         self._reflectance = reflectance
         self._steps = integration_steps
+        check_zone_order(*zone_order)
+        self._zone_order = zone_order
         self._seed = seed
         self._camera = tof_depth_camera(self._params, renderer_name)
         k = self._params.subsamples
@@ -263,11 +274,13 @@ class ToFSensor(LeafSystem):
                np.concatenate([r.reshape(res, res, -1) for _, r in renders], axis=-1))
         weight = (None if self._weight is None else
                   np.concatenate([self._weight.reshape(res, res, -1)] * len(renders), axis=-1))
-        return device_readings(
+        frame = device_readings(
             depth, self._params, self._behaviour, frame_rng(self._seed, sequence),
             reflectance=rho, weight=weight,
-            previous=previous if previous.sequence > 0 else None,
+            previous=(restore_frame(previous, *self._zone_order) if previous.sequence > 0
+                      else None),
             sequence=sequence, timestamp_us=round(context.get_time() * 1e6))
+        return reorder_frame(frame, *self._zone_order)
 
     def _Capture(self, context: Context, state: State) -> None:
         renders = [*context.get_abstract_state(self._renders_index).get_value(),
