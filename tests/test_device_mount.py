@@ -10,9 +10,11 @@ import pytest
 
 from lrnbv_drake.core.robot import kinematics
 from lrnbv_drake.core.robot.poses import look_at
+from lrnbv_drake.core.sensing.sensor import ZoneGeometry
 from lrnbv_drake.core.sensing.zone_order import (
     ZONE_FLIPS,
     ZONE_ROTATIONS,
+    model_flips,
     reorder_zones,
     restore_zones,
 )
@@ -30,7 +32,9 @@ def capture(device: str, X_WS_target: np.ndarray = ABOVE_BOX, scenario_text: str
             ) -> tuple:
     """The frame, the model's sensor pose and the true object from the cell with `device:`
     fields `device`, the arm at the model's pose `X_WS_target`."""
-    scenario = load_scenario(data=f"{scenario_text}\ndevice: {{{device}}}")
+    # The view exactly as planned, not rolled half a turn about its axis.
+    scenario = load_scenario(data=f"robot: {{sensor_roll_step_deg: 0.0}}\n{scenario_text}\n"
+                                  f"device: {{{device}}}")
     check_ranges(scenario)
     q = MotionPlanner(scenario).ik(X_WS_target, kinematics.HOME.copy())[0]
     cell = make_cell(scenario)
@@ -74,6 +78,18 @@ def test_a_board_in_another_zone_order_reports_the_same_frame_reordered():
         np.testing.assert_equal(moved_pose, pose)
     # The test can fail: a quarter turn of this view changes the frame.
     assert not np.array_equal(reorder_zones(nominal.distance_mm, 90), nominal.distance_mm)
+
+
+@pytest.mark.parametrize(("rotate", "flip"), [(r, f) for r in ZONE_ROTATIONS
+                                              for f in ("none", "rows")])
+def test_the_model_reads_any_board_order_once_told_its_flips(rotate, flip):
+    nominal, _, _ = capture("")
+    flip_x, flip_y, transpose = model_flips(rotate, flip)
+    frame, _, _ = capture(f"zone_order: {{rotate: {rotate}, flip: {flip}}}",
+                          scenario_text=f"sensor: {{flip_x: {flip_x}, flip_y: {flip_y}, "
+                                        f"transpose: {transpose}}}")
+    geometry = ZoneGeometry(flip_x=flip_x, flip_y=flip_y, transpose=transpose)
+    np.testing.assert_equal(geometry.to_row_major(frame.distance_mm), nominal.distance_mm)
 
 
 def test_a_mount_off_the_model_sees_what_the_models_sensor_sees_from_the_true_pose():
@@ -130,3 +146,20 @@ def test_an_unknown_zone_order_or_a_table_that_carries_the_robot_is_refused(tmp_
                                   "device: {table_offset_mm: 5}")
     with pytest.raises(ScenarioError, match=r"'device\.table_offset_mm'.*ur5e::base_link"):
         make_cell(scenario)
+
+
+def test_the_model_takes_the_commissioned_mount_in_its_pose_and_its_inverse_kinematics():
+    mount = "mount: {xyz_mm: [2, -2, 1], rpy_deg: [1.5, 1, 3]}"
+    # The model told the mount the device has: the arm reaches the planned sensor pose (the
+    # IK goes through the calibrated mount), tof.pose is that pose, and the frame is what
+    # the CAD-mounted sensor sees from it.
+    frame, pose, _ = capture(f"{NOISE_FREE}, {mount}", scenario_text=f"sensor: {{{mount}}}")
+    np.testing.assert_allclose(pose, ABOVE_BOX, atol=1e-9)
+    nominal, _, _ = capture(NOISE_FREE)
+    valid = frame.valid & nominal.valid
+    assert valid.sum() >= 60
+    assert np.abs(frame.distance_mm[valid].astype(int) - nominal.distance_mm[valid]).max() <= 1
+    # The test can fail: with the model left on the CAD mount the arm goes elsewhere.
+    uncommissioned, _, _ = capture(f"{NOISE_FREE}, {mount}")
+    assert np.abs(uncommissioned.distance_mm[valid].astype(int)
+                  - nominal.distance_mm[valid]).max() >= 3

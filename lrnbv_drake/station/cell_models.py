@@ -19,7 +19,7 @@ from pydrake.geometry import (
     Meshcat,
     SceneGraph,
 )
-from pydrake.math import RigidTransform
+from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.parsing import (
     LoadModelDirectives,
     ModelDirectives,
@@ -35,7 +35,7 @@ from lrnbv_drake.core.evaluation import objects
 from lrnbv_drake.core.robot.safety import RobotInterface
 from lrnbv_drake.drivers.tof_serial import ToFSerialReader
 from lrnbv_drake.station.resources import make_parser, resolve_url
-from lrnbv_drake.station.scenario import Scenario, ScenarioError
+from lrnbv_drake.station.scenario import MountOffset, Scenario, ScenarioError
 
 _log = logging.getLogger(__name__)
 
@@ -197,11 +197,25 @@ def add_frustum(plant: MultibodyPlant, scene_graph: SceneGraph, tof_frame: Frame
              "f 1 3 2", "f 1 4 3", "f 1 5 4", "f 1 2 5", "f 2 3 4", "f 2 4 5"]
     path = Path(models.mesh_dir.name) / "frustum.obj"
     path.write_text("\n".join(lines) + "\n")
-    instance = GeometryInstance(tof_frame.GetFixedPoseInBodyFrame(), Mesh(str(path)), "frustum")
+    instance = GeometryInstance(
+        tof_frame.GetFixedPoseInBodyFrame() @ offset_pose(scenario.sensor.mount),
+        Mesh(str(path)), "frustum")
     instance.set_illustration_properties(
         MakePhongIllustrationProperties(np.array([0.2, 0.9, 0.3, 0.25])))
     scene_graph.RegisterGeometry(plant.get_source_id(),
                                  plant.GetBodyFrameIdOrThrow(tof_frame.body().index()), instance)
+
+
+def offset_pose(offset: MountOffset) -> RigidTransform:
+    """A `MountOffset` as the pose of the sensor in the CAD mount's `tof` frame."""
+    return RigidTransform(RollPitchYaw(np.deg2rad(offset.rpy_deg)),
+                          np.asarray(offset.xyz_mm, float) / 1000)
+
+
+def sensor_on_tool0(plant: MultibodyPlant, scenario: Scenario) -> RigidTransform:
+    """X_tool0_S: the sensor's pose on the flange the model assumes, the CAD mount times the
+    commissioned `sensor.mount`."""
+    return fixed_pose(plant, "tool0", "tof") @ offset_pose(scenario.sensor.mount)
 
 
 def fixed_pose(plant: MultibodyPlant, frame_a: str, frame_b: str) -> RigidTransform:

@@ -41,6 +41,7 @@ from lrnbv_drake.station.cell_models import (
     apply_visualization,
     close_all,
     fixed_pose,
+    sensor_on_tool0,
 )
 from lrnbv_drake.station.hardware_config import ROBOT_DRIVERS, SENSOR_DRIVERS
 from lrnbv_drake.station.parts import safety_limits
@@ -217,7 +218,7 @@ def _add_hardware_systems(builder: DiagramBuilder, scenario: Scenario, plant: Mu
         robot, period=hw.status_period, rtde_timeout=hw.rtde_timeout))
     sender = builder.AddNamedSystem("ur5e_command", Ur5eCommandSender(
         robot, safety_limits(scenario, fixed_pose(plant, "world", "base").GetAsMatrix4(),
-                             fixed_pose(plant, "tool0", "tof").GetAsMatrix4()),
+                             sensor_on_tool0(plant, scenario).GetAsMatrix4()),
         period=hw.servo_period,
         lookahead_time=hw.servo_lookahead_time, gain=hw.servo_gain,
         stop_deceleration=hw.stop_deceleration, robot_ip=robot_ip,
@@ -245,7 +246,7 @@ def _add_hardware_systems(builder: DiagramBuilder, scenario: Scenario, plant: Mu
                     stamper.GetInputPort("velocity"))
     pose = builder.AddNamedSystem("tof_pose", SensorPose(
         fixed_pose(plant, "world", "base").GetAsMatrix4(),
-        fixed_pose(plant, "tool0", "tof").GetAsMatrix4()))
+        sensor_on_tool0(plant, scenario).GetAsMatrix4()))
     builder.Connect(measured, pose.get_input_port())
 
     builder.ExportInput(sender.GetInputPort("position"), "ur5e.position")

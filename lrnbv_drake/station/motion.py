@@ -28,7 +28,7 @@ from lrnbv_drake.core.robot import kinematics
 from lrnbv_drake.core.robot.motion import MotionFailure, MotionPlan
 from lrnbv_drake.core.robot.poses import look_at
 from lrnbv_drake.core.sensing.sensor import ROLL_STEPS_DEG, ROLL_STEPS_TEXT
-from lrnbv_drake.station.cell_models import add_cell_models, fixed_pose
+from lrnbv_drake.station.cell_models import add_cell_models, fixed_pose, sensor_on_tool0
 from lrnbv_drake.station.resources import make_robot_diagram_builder
 from lrnbv_drake.station.scenario import Scenario
 
@@ -115,7 +115,7 @@ class MotionPlanner:
         finally:
             drake_log.setLevel(level)
         self.X_W_base = fixed_pose(plant, "world", "base").GetAsMatrix4()
-        self.X_tool0_S = fixed_pose(plant, "tool0", "tof").GetAsMatrix4()
+        self.X_tool0_S = sensor_on_tool0(plant, scenario).GetAsMatrix4()
         self._X_base_W = np.linalg.inv(self.X_W_base)
         self._X_S_tool0 = np.linalg.inv(self.X_tool0_S)
         self.workspace = (np.asarray(scenario.cell.workspace_lower, float),

@@ -9,7 +9,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from pydrake.math import RigidTransform, RollPitchYaw
 
 from lrnbv_drake.core.acquisition import SelfFilter
 from lrnbv_drake.core.boxes import AlignedBox
@@ -90,24 +89,20 @@ def device_profile(scenario: Scenario) -> DeviceProfile:
 
 def device_params(scenario: Scenario) -> SensorModelParams:
     """How the simulated device behaves: the model with `device:`'s fields where set, and
-    the profile's zone directions. Only the simulated sensor may use it
-    (tests/test_device_section.py checks)."""
+    the profile's zone directions. The board's own zone order is row-major, whatever order
+    the model assumes (`sensor.flip_x` ...); `device.zone_order` moves it. Only the simulated
+    sensor may use it (tests/test_device_section.py checks)."""
     model, d = sensor_params(scenario), scenario.device
     noise = NoiseModel(sigma0_mm=model.noise.sigma0_mm if d.sigma0_mm is None else d.sigma0_mm,
                        k=model.noise.k if d.noise_k is None else d.noise_k)
-    geometry = dc.replace(model.geometry, centres_deg=_zone_centres(
+    geometry = dc.replace(model.geometry, flip_x=False, flip_y=False, transpose=False,
+                          centres_deg=_zone_centres(
         device_profile(scenario).zone_directions, model.geometry.resolution,
         "device.zone_directions"))
     return dc.replace(model, noise=noise, geometry=geometry,
                       min_share=model.min_share if d.min_share is None else d.min_share,
                       cluster_gap_mm=(model.cluster_gap_mm if d.cluster_gap_mm is None
                                       else d.cluster_gap_mm))
-
-
-def device_mount(scenario: Scenario) -> RigidTransform:
-    """X_MS: the simulated sensor's true pose in the model's `tof` frame (`device.mount`)."""
-    m = scenario.device.mount
-    return RigidTransform(RollPitchYaw(np.deg2rad(m.rpy_deg)), np.asarray(m.xyz_mm) / 1000)
 
 
 def _zone_centres(directions: str, resolution: int, field: str) -> np.ndarray | None:

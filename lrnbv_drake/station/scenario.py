@@ -97,6 +97,17 @@ class ObjectConfig:
 
 
 @dc.dataclass
+class MountOffset:
+    """The sensor's pose against the CAD mount's `tof` frame (models/cell/tof_mount.sdf): a
+    bracket bolted by hand is off by a degree or two and a few millimetres."""
+
+    # Offset along the CAD tof's x, y, z (z: the optical axis), mm.
+    xyz_mm: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    # Turn about the CAD tof's x, y, z (Drake's roll-pitch-yaw), degrees.
+    rpy_deg: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dc.dataclass
 class SensorConfig:
     """The VL53L8CX: zone geometry, the simulated sensor's model and the serial link."""
 
@@ -132,20 +143,12 @@ class SensorConfig:
     period: float = 0.0666666666666666
     # Frames discarded after the arm stops before one is used.
     settle_frames: int = 1
+    # The sensor's pose against the CAD mount that the model assumes, as `lrnbv hardware
+    # commission` measures it (docs/hardware.md).
+    mount: MountOffset = dc.field(default_factory=MountOffset)
     # Hardware only: serial port and baud rate of the sensor board.
     serial_port: str = ""
     baud: int = 460800
-
-
-@dc.dataclass
-class DeviceMount:
-    """Where the simulated sensor really sits: its pose in the model's `tof` frame (a bracket
-    bolted by hand is off by a degree or two and a few millimetres)."""
-
-    # Offset along the model's tof x, y, z (z: the optical axis), mm.
-    xyz_mm: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    # Turn about the model's tof x, y, z (Drake's roll-pitch-yaw), degrees.
-    rpy_deg: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
 @dc.dataclass
@@ -205,8 +208,8 @@ class DeviceConfig:
     zone_directions: str | None = None
     # Renders a frame integrates over its period (a moving sensor blurs), >= 1.
     integration_steps: int | None = None
-    # The sensor's true pose on the flange against the model's mount.
-    mount: DeviceMount = dc.field(default_factory=DeviceMount)
+    # The simulated sensor's true pose against the CAD mount.
+    mount: MountOffset = dc.field(default_factory=MountOffset)
     # The board's zone order against the model's.
     zone_order: DeviceZoneOrder = dc.field(default_factory=DeviceZoneOrder)
     # The table top (and the object resting on it) above `cell.table_height`, mm.

@@ -127,6 +127,8 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("device.ambient_klux", _at_least(0)),
     ("device.reported_sigma_spread", _at_least(0)),
     ("device.integration_steps", _at_least(1)),
+    ("sensor.mount.xyz_mm", _vector(3)),
+    ("sensor.mount.rpy_deg", _vector(3)),
     ("device.mount.xyz_mm", _vector(3)),
     ("device.mount.rpy_deg", _vector(3)),
     ("device.zone_order.rotate", ((lambda v: v in ZONE_ROTATIONS),

@@ -19,13 +19,10 @@ from lrnbv_drake.station.cell_models import (
     add_frustum,
     apply_visualization,
     fixed_pose,
+    offset_pose,
+    sensor_on_tool0,
 )
-from lrnbv_drake.station.parts import (
-    device_mount,
-    device_params,
-    device_profile,
-    scene_reflectance,
-)
+from lrnbv_drake.station.parts import device_params, device_profile, scene_reflectance
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.systems.sensor_pose import SensorPose
 from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer
@@ -47,7 +44,7 @@ def make_sim_cell(scenario: Scenario, meshcat: Meshcat | None = None) -> Cell:
     device = device_profile(scenario)
     sensor = builder.AddNamedSystem("tof", ToFSensor(
         parent_frame_id=plant.GetBodyFrameIdOrThrow(tof_frame.body().index()),
-        X_PS=tof_frame.GetFixedPoseInBodyFrame() @ device_mount(scenario),
+        X_PS=tof_frame.GetFixedPoseInBodyFrame() @ offset_pose(scenario.device.mount),
         params=device_params(scenario),
         seed=scenario.seed,
         period=scenario.sensor.period,
@@ -59,7 +56,7 @@ def make_sim_cell(scenario: Scenario, meshcat: Meshcat | None = None) -> Cell:
     builder.Connect(scene_graph.get_query_output_port(), sensor.get_input_port())
     pose = builder.AddNamedSystem("tof_pose", SensorPose(
         fixed_pose(plant, "world", "base").GetAsMatrix4(),
-        fixed_pose(plant, "tool0", "tof").GetAsMatrix4()))
+        sensor_on_tool0(plant, scenario).GetAsMatrix4()))
     builder.Connect(command.get_output_port(), pose.get_input_port())
 
     builder.ExportInput(command.get_input_port(), "ur5e.position")

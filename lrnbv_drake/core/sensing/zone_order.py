@@ -9,10 +9,11 @@ the eight distinct orders of a square grid, each reachable as (rotate, "none" or
 from __future__ import annotations
 
 import dataclasses as dc
+import itertools
 
 import numpy as np
 
-from lrnbv_drake.core.sensing.sensor import ToFFrame
+from lrnbv_drake.core.sensing.sensor import ToFFrame, ZoneGeometry
 
 #: Turns of the grid, degrees counter-clockwise.
 ZONE_ROTATIONS = (0, 90, 180, 270)
@@ -43,6 +44,17 @@ def restore_zones(grid: np.ndarray, rotate: int = 0, flip: str = "none") -> np.n
     the inverse of `reorder_zones`."""
     check_zone_order(rotate, flip)
     return _flip(np.rot90(grid, -(rotate // 90), axes=(0, 1)), flip)
+
+
+def model_flips(rotate: int = 0, flip: str = "none") -> tuple[bool, bool, bool]:
+    """(flip_x, flip_y, transpose) of the `ZoneGeometry` that reads a board with this zone
+    order in the model's row-major order."""
+    zones = np.arange(16).reshape(4, 4)
+    board = reorder_zones(zones, rotate, flip)
+    [flags] = [f for f in itertools.product((False, True), repeat=3)
+               if np.array_equal(ZoneGeometry(4, flip_x=f[0], flip_y=f[1], transpose=f[2])
+                                 .to_raw(zones), board)]
+    return flags
 
 
 def _map_frame(frame: ToFFrame, zones, rotate: int, flip: str) -> ToFFrame:
