@@ -202,3 +202,31 @@ def test_every_sub_sample_pixel_lies_inside_its_zone(resolution: int, subsamples
         assert np.all(np.abs(along - nominal[:, :, None, None]) <= quarter_pitch + 1e-12)
         assert np.all(along > edges[:-1, None, None, None])
         assert np.all(along < edges[1:, None, None, None])
+
+
+def test_a_tilted_plane_is_sampled_at_its_true_depth_and_an_edge_at_a_surfaces_depth() -> None:
+    """The depth image of a plane has inverse depth linear in the pixel (1/z = a + b tan_x +
+    c tan_y): every sample reads the plane's depth along its own direction. Across a step,
+    a sample reads one of the two surfaces, never a blend."""
+    params = SensorModelParams()
+    camera = tof_depth_camera(params)
+    info = camera.core().intrinsics()
+    u, v = np.meshgrid(np.arange(info.width()), np.arange(info.height()))
+    tan_x = (u + 0.5 - info.center_x()) / info.focal_x()
+    tan_y = (v + 0.5 - info.center_y()) / info.focal_y()
+    a, b, c = 1 / 0.3, 1.2, -0.8  # a plane 0.3 m away on the axis, seen about 55 degrees off
+    plane = 1 / (a + b * tan_x + c * tan_y)
+    directions = params.geometry.sub_directions(params.subsamples)
+    truth = 1 / (a + b * directions[..., 0] + c * directions[..., 1])
+    np.testing.assert_allclose(sample_zone_depths(plane, camera, params), truth, rtol=1e-9)
+    # The nearest pixel alone is off by up to a millimetre here.
+    nearest = plane[np.rint(info.center_y() + info.focal_y() * directions[..., 1] - 0.5)
+                    .astype(int), np.rint(info.center_x() + info.focal_x()
+                                          * directions[..., 0] - 0.5).astype(int)]
+    assert np.abs(nearest - truth).max() > 5e-4
+    step = np.where(tan_x < 0.05, 0.25, 0.40)  # an edge: 0.25 m left of it, 0.40 m right
+    step[:, :3] = np.inf  # and nothing in range at the far left
+    sampled = sample_zone_depths(step, camera, params)
+    finite = sampled[np.isfinite(sampled)]
+    assert np.all(np.isclose(finite, 0.25, rtol=1e-12) | np.isclose(finite, 0.40, rtol=1e-12))
+    assert np.isinf(sampled).any() and np.isclose(finite, 0.25).any()

@@ -48,6 +48,10 @@ from lrnbv_drake.core.sensing.zone_order import (
     restore_frame,
 )
 
+#: Relative depth spread over a sample's four pixels above which they straddle an edge: a plane
+#: seen 70 degrees from its normal spreads 1.7 % over a pixel of the 8x8 image's centre (0.35
+#: degrees), so planes are interpolated up to about 73 degrees.
+_SMOOTH_STEP = 0.02
 #: Near clipping plane and minimum depth, metres: geometry closer than 5 mm to the sensor is not
 #: rendered. The device's own 20 mm minimum is applied by the sensor model, not here.
 _NEAR_M = 0.005
@@ -92,7 +96,15 @@ def sample_zone_depths(
     depth_image: np.ndarray, camera: DepthRenderCamera, params: SensorModelParams
 ) -> np.ndarray:
     """Samples a (height, width) depth image rendered with `camera` at the zone sub-sample
-    directions (`ZoneGeometry.sub_directions`), taking the pixel whose centre is nearest each.
+    directions (`ZoneGeometry.sub_directions`).
+
+    Each sample interpolates the four pixels around its direction bilinearly in inverse
+    depth, which is exact on any plane (a plane's inverse depth is linear in the image), so a
+    tilted surface reads its true depth rather than a neighbouring pixel's (up to 1.3 mm off at
+    60 degrees of tilt). Where those four pixels straddle a depth step of more than
+    `_SMOOTH_STEP`, or one sees nothing, the sample takes the pixel nearest its direction,
+    which lies inside its own sub-sample cell: an edge is never blended into a depth no
+    surface has.
 
     Returns:
         (res, res, k, k) depths in row-major zone order.
@@ -100,9 +112,20 @@ def sample_zone_depths(
     tan = np.tan(params.geometry.sub_angles_xy_rad(params.subsamples))
     info = camera.core().intrinsics()
     # VTK samples pixel u at tan = (u + 0.5 - center) / focal.
-    cols = np.rint(info.center_x() + info.focal_x() * tan[..., 0] - 0.5).astype(np.intp)
-    rows = np.rint(info.center_y() + info.focal_y() * tan[..., 1] - 0.5).astype(np.intp)
-    return depth_image[rows, cols]
+    u = info.center_x() + info.focal_x() * tan[..., 0] - 0.5
+    v = info.center_y() + info.focal_y() * tan[..., 1] - 0.5
+    nearest = depth_image[np.rint(v).astype(np.intp), np.rint(u).astype(np.intp)]
+    u0 = np.clip(np.floor(u).astype(np.intp), 0, depth_image.shape[1] - 2)
+    v0 = np.clip(np.floor(v).astype(np.intp), 0, depth_image.shape[0] - 2)
+    fu, fv = u - u0, v - v0
+    four = np.stack([depth_image[v0, u0], depth_image[v0, u0 + 1],
+                     depth_image[v0 + 1, u0], depth_image[v0 + 1, u0 + 1]])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        smooth = (np.isfinite(four).all(axis=0) & (four.min(axis=0) > 0)
+                  & (four.max(axis=0) <= four.min(axis=0) * (1 + _SMOOTH_STEP)))
+        inverse = ((1 - fu) * (1 - fv) / four[0] + fu * (1 - fv) / four[1]
+                   + (1 - fu) * fv / four[2] + fu * fv / four[3])
+        return np.where(smooth, 1 / inverse, nearest)
 
 
 def render_zone_depths(
