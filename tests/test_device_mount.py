@@ -8,6 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
+from lrnbv_drake.core.evaluation.metrics import true_box
 from lrnbv_drake.core.robot import kinematics
 from lrnbv_drake.core.robot.poses import look_at
 from lrnbv_drake.core.sensing.sensor import ZoneGeometry
@@ -124,6 +125,11 @@ def test_a_table_off_its_height_carries_the_object_and_the_model_does_not_know()
     assert np.all(np.abs(difference - 5) <= 1) and np.median(difference) == 5
     np.testing.assert_allclose(high_pose, pose, atol=1e-9)
     np.testing.assert_allclose(high_placed.mesh.bounds[:, 2] - placed.mesh.bounds[:, 2], 0.005,
+                               atol=1e-12)
+    # The truth the episode is scored against stands on the true table: the same box.
+    assert high_placed.table_height == pytest.approx(0.005)
+    np.testing.assert_allclose(true_box(high_placed.mesh.vertices, high_placed.table_height).dims,
+                               true_box(placed.mesh.vertices, placed.table_height).dims,
                                atol=1e-12)
 
 

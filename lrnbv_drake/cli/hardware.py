@@ -3,6 +3,7 @@
     lrnbv hardware --robot-ip IP --sensor-port PORT --out DIR [--scenario FILE]
                    [--planner lrnbv] [--dry-run] [--yes] [--meshcat]
     lrnbv hardware --resume DIR [--robot-ip IP] [--sensor-port PORT] [--yes] [--meshcat]
+    lrnbv hardware commission --dry-run --out DIR [--scenario FILE]  (cli/commission.py)
 
 Before the first motion it describes what is about to happen and asks for `yes` on stdin
 (`--yes` skips the question; a dry run never asks). Everything captured is in DIR as it
@@ -16,6 +17,7 @@ import json
 import sys
 from pathlib import Path
 
+from lrnbv_drake.cli.commission import add_commission_command, run_commission_command
 from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir, remove_if_empty
 from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
 from lrnbv_drake.core.robot.safety import RobotConnectionError, RobotFault
@@ -58,6 +60,8 @@ def add_hardware_commands(subparsers: argparse._SubParsersAction) -> None:
                    help="serve the live Meshcat view on every interface (by default on "
                         "localhost; a replay.html is written either way)")
     p.add_argument("--resume", metavar="DIR", help="continue the session recorded in DIR")
+    add_commission_command(p.add_subparsers(dest="hardware_command", required=False,
+                                            metavar="{commission}"))
 
 
 def _scenario(args: argparse.Namespace) -> Scenario:
@@ -90,6 +94,8 @@ def _check_args(args: argparse.Namespace) -> str | None:
 
 def run_hardware_command(args: argparse.Namespace) -> int:
     """Runs a command parsed by `add_hardware_commands`; returns the exit code."""
+    if args.hardware_command == "commission":
+        return run_commission_command(args)
     problem = _check_args(args)
     if problem is not None:
         print(f"lrnbv hardware: error: {problem}", file=sys.stderr)

@@ -193,8 +193,9 @@ def box_entry(scenario: Scenario, estimate: BoxEstimate | None) -> dict[str, Any
 
 def episode_metrics(scenario: Scenario, placed: PlacedObject, episode_log: EpisodeLog,
                     estimated: OrientedBox | None) -> metrics.EpisodeMetrics:
-    """Box, coverage and pose metrics of an episode against the true object."""
-    table = scenario.cell.table_height
+    """Box, coverage and pose metrics of an episode against the true object (resting on the
+    true table, which a simulated cell may put off `cell.table_height`)."""
+    table = placed.table_height
     # The same samples for every planner and trial (seed 0): differences are the planners'.
     samples = sample_surface(placed.mesh, COVERAGE_SPACING, table_height=table, seed=0)
     cells = [e.object_points if e is not None and e.found else np.zeros((0, 3))
@@ -209,7 +210,7 @@ def accuracy_metrics(scenario: Scenario, placed: PlacedObject, track: EstimateTr
     in the reported interval, poses-to-5 mm and -10 mm (`metrics.poses_to_accuracy`) from
     the estimate after each pose, and the container `decision` against the one the true box
     gets (`packing.packing_metrics`)."""
-    true = metrics.true_box(placed.mesh.vertices, scenario.cell.table_height)
+    true = metrics.true_box(placed.mesh.vertices, placed.table_height)
     errors = errors_after_each_pose(track, true)
     out: dict[str, Any] = {
         "true_box": {"center": true.center.tolist(), "dims": true.dims.tolist(),

@@ -47,7 +47,8 @@ class CellModels:
     """What `add_cell_models` put into a plant."""
 
     ur5e: ModelInstanceIndex
-    placed_object: objects.PlacedObject
+    # The object as placed; None on a bare table (commissioning).
+    placed_object: objects.PlacedObject | None
     # Keeps the exported meshes (the object, the frustum) alive as long as the plant uses them.
     mesh_dir: tempfile.TemporaryDirectory = dc.field(repr=False)
 
@@ -109,11 +110,12 @@ def apply_visualization(builder: DiagramBuilder, scenario: Scenario, plant: Mult
                              scene_graph=scene_graph, meshcat=meshcat)
 
 
-def add_cell_models(plant: MultibodyPlant, scenario: Scenario,
-                    table_offset: float = 0.0) -> CellModels:
-    """Adds the robot, table and sensor mount (from the directives) and the object to `plant`.
-    `table_offset` (m) raises the table, and the object resting on it, above where the
-    scenario says it is: a simulated cell off its model (`device.table_offset_mm`).
+def add_cell_models(plant: MultibodyPlant, scenario: Scenario, table_offset: float = 0.0,
+                    bare_table: bool = False) -> CellModels:
+    """Adds the robot, table and sensor mount (from the directives) and, unless `bare_table`,
+    the object to `plant`. `table_offset` (m) raises the table, and the object resting on it,
+    above where the scenario says it is: a simulated cell off its model
+    (`device.table_offset_mm`).
 
     The object is anchored to the world at its resting pose: it does not move during an episode.
     Its perception (rendered) geometry is the exact mesh; its proximity geometry, which the
@@ -130,9 +132,11 @@ def add_cell_models(plant: MultibodyPlant, scenario: Scenario,
         _raise_table(directives, table_offset)
     ProcessModelDirectives(directives, plant, parser)
     ur5e = plant.GetModelInstanceByName("ur5e")
+    mesh_dir = tempfile.TemporaryDirectory(prefix="lrnbv_object_")
+    if bare_table:
+        return CellModels(ur5e=ur5e, placed_object=None, mesh_dir=mesh_dir)
 
     placed = place_object(scenario, table_offset)
-    mesh_dir = tempfile.TemporaryDirectory(prefix="lrnbv_object_")
     obj_path = Path(mesh_dir.name) / "object.obj"
     objects.export_obj(placed.mesh, obj_path)
     world = plant.world_body()
@@ -168,16 +172,17 @@ def place_object(scenario: Scenario, table_offset: float = 0.0) -> objects.Place
                                   table_height=scenario.cell.table_height + table_offset)
 
 
-def add_cell_plant(builder: DiagramBuilder, scenario: Scenario, table_offset: float = 0.0
+def add_cell_plant(builder: DiagramBuilder, scenario: Scenario, table_offset: float = 0.0,
+                   bare_table: bool = False
                    ) -> tuple[MultibodyPlant, SceneGraph, CellModels]:
     """Adds a SceneGraph to `builder` and makes the cell's finalized plant, registered with it
     but not added to the builder: nothing integrates it, positions are fed to SceneGraph.
-    `table_offset`: as `add_cell_models`."""
+    `table_offset`, `bare_table`: as `add_cell_models`."""
     scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
     plant = MultibodyPlant(time_step=0.0)
     plant.set_name("plant")
     plant.RegisterAsSourceForSceneGraph(scene_graph)
-    models = add_cell_models(plant, scenario, table_offset)
+    models = add_cell_models(plant, scenario, table_offset, bare_table)
     plant.Finalize()
     if plant.num_positions() != 6:
         raise ScenarioError(

@@ -91,9 +91,10 @@ def _roll(angle: float) -> np.ndarray:
 class MotionPlanner:
     """Plans collision-free, limited motions of the sensor for one scenario's cell."""
 
-    def __init__(self, scenario: Scenario):
+    def __init__(self, scenario: Scenario, bare_table: bool = False):
+        """`bare_table`: plan around the cell without its object (commissioning)."""
         builder = make_robot_diagram_builder()
-        add_cell_models(builder.plant(), scenario)
+        add_cell_models(builder.plant(), scenario, bare_table=bare_table)
         plant = builder.plant()
         plant.Finalize()
         self._model = builder.Build()

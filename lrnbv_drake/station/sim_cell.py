@@ -28,11 +28,14 @@ from lrnbv_drake.systems.sensor_pose import SensorPose
 from lrnbv_drake.systems.tof_sensor import ToFSensor, add_tof_renderer
 
 
-def make_sim_cell(scenario: Scenario, meshcat: Meshcat | None = None) -> Cell:
-    """Builds the simulated cell (`station.cell` lists its ports)."""
+def make_sim_cell(scenario: Scenario, meshcat: Meshcat | None = None,
+                  bare_table: bool = False) -> Cell:
+    """Builds the simulated cell (`station.cell` lists its ports); with `bare_table`, without
+    the object (commissioning)."""
     builder = DiagramBuilder()
     plant, scene_graph, models = add_cell_plant(
-        builder, scenario, table_offset=scenario.device.table_offset_mm / 1000)
+        builder, scenario, table_offset=scenario.device.table_offset_mm / 1000,
+        bare_table=bare_table)
     command = builder.AddNamedSystem("ur5e_position", PassThrough(6))
     to_pose = builder.AddNamedSystem("to_geometry_pose", MultibodyPositionToGeometryPose(plant))
     builder.Connect(command.get_output_port(), to_pose.get_input_port())

@@ -168,12 +168,15 @@ class PlacedObject:
             can add the same mesh file at this pose.
         box_min_O: (3,) lower corner of the mesh's own bounding box, in that frame.
         box_max_O: (3,) upper corner.
+        table_height: z of the table top it rests on, m (off the scenario's where the
+            simulated table is, `device.table_offset_mm`).
     """
 
     mesh: trimesh.Trimesh
     X_WO: np.ndarray
     box_min_O: np.ndarray
     box_max_O: np.ndarray
+    table_height: float = 0.0
 
     def true_box_points(self) -> np.ndarray:
         """(8, 3) world corners of the true box; corner i takes the upper x, y, z bound where
@@ -201,7 +204,8 @@ def place_on_table(
     X_WO[:3, 3] = np.array([placement.x, placement.y, table_height]) - X_WO[:3, :3] @ anchor
     world = mesh.copy()
     world.apply_transform(X_WO)
-    return PlacedObject(mesh=world, X_WO=X_WO, box_min_O=box_min, box_max_O=box_max)
+    return PlacedObject(mesh=world, X_WO=X_WO, box_min_O=box_min, box_max_O=box_max,
+                        table_height=table_height)
 
 
 def _obj_number(value: float) -> str:

@@ -1,0 +1,106 @@
+"""Commissioning (core/calibration/commissioning.py) on views rendered by the simulated cell,
+its device mounted off the CAD, its table off its height and its zones in another order: the
+fit finds each, refuses views that cannot tell them apart, and the command writes a section
+that the model takes."""
+
+import dataclasses as dc
+import itertools
+
+import numpy as np
+import pytest
+import yaml
+
+from lrnbv_drake.cli.main import main
+from lrnbv_drake.core.calibration.commissioning import (
+    CommissioningError,
+    TableView,
+    fit_commissioning,
+    table_view_poses,
+)
+from lrnbv_drake.core.sensing.zone_order import ZONE_ROTATIONS, reorder_frame
+from lrnbv_drake.experiments.commissioning import cad_scenario
+from lrnbv_drake.station.motion import MotionPlanner
+from lrnbv_drake.station.parts import sensor_behaviour, sensor_params
+from lrnbv_drake.station.scenario import load_scenario
+from lrnbv_drake.station.sim_cell import make_sim_cell
+
+MOUNT_XYZ_MM, MOUNT_RPY_DEG, TABLE_MM = [2.0, -2.0, 1.0], [1.5, 1.0, 3.0], 5.0
+OFF_CELL = (f"device: {{mount: {{xyz_mm: {MOUNT_XYZ_MM}, rpy_deg: {MOUNT_RPY_DEG}}}, "
+            f"table_offset_mm: {TABLE_MM}, sigma0_mm: 0.0, noise_k: 0.0}}")
+TRUTH = np.array([*MOUNT_XYZ_MM, *MOUNT_RPY_DEG, TABLE_MM, 0.0, 0.0])
+#: Noise-free, the fit is within 0.3 mm and 0.03 degrees (the render's sampling and the
+#: readings' whole millimetres): bounds with room, and below the errors themselves.
+BOUND = np.array([0.6] * 3 + [0.06] * 3 + [0.6, 0.06, 0.06])
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    """The planned views of the bare table, one noise-free frame each, and the fit's inputs."""
+    scenario = cad_scenario(load_scenario(data=OFF_CELL))
+    cell = make_sim_cell(scenario, bare_table=True)
+    motion = MotionPlanner(scenario, bare_table=True)
+    context = cell.diagram.CreateDefaultContext()
+    tof = cell.diagram.GetSubsystemByName("tof")
+    views, q = [], np.asarray(scenario.robot.initial_position)
+    for i, X in enumerate(table_view_poses(np.array([0.5, 0.0]), 0.0)):
+        plan = motion.plan(q, X)
+        if not plan.ok:
+            continue
+        q = plan.q_target
+        cell.diagram.GetInputPort("ur5e.position").FixValue(context, q)
+        frame = tof.CaptureFrame(tof.GetMyContextFromRoot(context), sequence=i + 1)
+        views.append(TableView(cell.diagram.GetOutputPort("tof.pose").Eval(context)
+                               .GetAsMatrix4(), (frame,)))
+    assert len(views) >= 12
+    inputs = dict(model=sensor_params(scenario), behaviour=sensor_behaviour(scenario),
+                  extent=np.array(scenario.cell.table_extent), at_xy=np.array([0.5, 0.0]))
+    return views, inputs
+
+
+def test_a_known_mount_and_table_are_recovered_from_rendered_views(rendered):
+    views, inputs = rendered
+    fit = fit_commissioning(views, **inputs)
+    assert np.all(np.abs(fit.values - TRUTH) <= BOUND), fit.values - TRUTH
+    assert fit.zone_order == (0, "none")
+    # The test can fail: without the fit (the CAD values) every offset is beyond its bound.
+    assert np.all(np.abs(TRUTH[:7]) > BOUND[:7])
+
+
+@pytest.mark.parametrize(("rotate", "flip"), list(itertools.product(ZONE_ROTATIONS,
+                                                                    ("none", "rows"))))
+def test_each_of_the_eight_zone_orders_is_recognised(rendered, rotate, flip):
+    views, inputs = rendered
+    board = [dc.replace(v, frames=tuple(reorder_frame(f, rotate, flip) for f in v.frames))
+             for v in views]
+    fit = fit_commissioning(board, **inputs)
+    assert fit.zone_order == (rotate, flip)
+    assert np.all(np.abs(fit.values - TRUTH) <= BOUND)
+
+
+def test_views_at_one_height_and_tilt_are_refused_naming_what_they_cannot_tell(rendered):
+    views, inputs = rendered
+    # The 60-degree ring: every view at the same height and tilt, from several sides.
+    ring = [v for v in views if abs(v.X_WC[2, 3] - 0.15) < 0.01]
+    assert len(ring) >= 4
+    with pytest.raises(CommissioningError, match=r"mount z.*table height"):
+        fit_commissioning(ring, **inputs)
+
+
+def test_the_dry_run_writes_a_section_the_model_takes(tmp_path, capsys):
+    off = ("{device: {mount: {xyz_mm: [2, -2, 1], rpy_deg: [1.5, 1, 3]}, "
+           "table_offset_mm: 5, zone_order: {rotate: 270, flip: cols}}}")
+    assert main(["hardware", "commission", "--out", str(tmp_path / "c"),
+                 "--scenario-text", off]) == 2  # the real arm: refused, nothing moved
+    assert "only --dry-run" in capsys.readouterr().err
+    assert main(["hardware", "commission", "--dry-run", "--out", str(tmp_path / "c"),
+                 "--scenario-text", off]) == 0
+    assert len(list((tmp_path / "c" / "views").glob("*.npz"))) >= 12  # each view on disk
+    section = tmp_path / "c" / "commissioning.yaml"
+    scenario = load_scenario(filename=section)
+    np.testing.assert_allclose(scenario.sensor.mount.rpy_deg, MOUNT_RPY_DEG, atol=0.2)
+    np.testing.assert_allclose(scenario.sensor.mount.xyz_mm, MOUNT_XYZ_MM, atol=2.5)
+    assert abs(scenario.cell.table_height - TABLE_MM / 1000) < 0.0025
+    # The board's order (270, cols) is (90, rows) mirrored back: the flips that read it.
+    assert (scenario.sensor.flip_x, scenario.sensor.flip_y, scenario.sensor.transpose) == \
+        (True, True, True)
+    assert yaml.safe_load(section.read_text()).keys() == {"sensor", "cell"}
