@@ -113,3 +113,26 @@ def test_more_poses_than_the_episode_has_are_refused_and_nothing_is_written(
     assert code == 2 and written is None
     assert f"{heu_run}: cannot take its first {n + 1} poses, it has {n}" in \
         capsys.readouterr().err
+
+
+def test_a_commissioned_mount_moves_every_recorded_pose_to_it(heu_run, tmp_path):
+    from lrnbv_drake.core.robot.poses import offset_transform
+    from lrnbv_drake.experiments.refit import load_episode, remounted
+    from lrnbv_drake.station.scenario import MountOffset
+
+    readings = load_episode(heu_run).readings
+    cad, turned = MountOffset(), MountOffset(xyz_mm=[0.0, 0.0, 10.0], rpy_deg=[0.0, 0.0, 90.0])
+    moved = remounted(readings, cad, turned)
+    # Hand-worked: 10 mm out along the optical axis and a quarter turn about it.
+    for (frame, X), (same, Y) in zip(readings, moved, strict=True):
+        assert same is frame
+        np.testing.assert_allclose(Y[:3, 3], X[:3, 3] + 0.01 * X[:3, 2], atol=1e-12)
+        np.testing.assert_allclose(Y[:3, :3], X[:3, :3] @ offset_transform([0, 0, 0],
+                                                                           [0, 0, 90])[:3, :3])
+    back = remounted(moved, turned, cad)
+    np.testing.assert_allclose([X for _, X in back], [X for _, X in readings], atol=1e-12)
+    # refit takes it: the episode's own readings under a mount 3 degrees off fit worse.
+    _, (own,) = _refit(tmp_path, heu_run)
+    _, (tilted,) = _refit(tmp_path, heu_run, "--scenario-text",
+                          "{sensor: {mount: {rpy_deg: [3.0, 0.0, 0.0]}}}")
+    assert max(map(abs, tilted["dim_errors_mm"])) > max(map(abs, own["dim_errors_mm"])) + 2

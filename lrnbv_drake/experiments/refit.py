@@ -22,6 +22,7 @@ import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.mapping.extraction import extract_object
+from lrnbv_drake.core.robot.poses import offset_transform
 from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.experiments.recording import frames_from_arrays, load_recording
 from lrnbv_drake.experiments.report import (
@@ -33,7 +34,7 @@ from lrnbv_drake.experiments.report import (
     rounded,
 )
 from lrnbv_drake.station.parts import extraction_params, map_system, packing_decision
-from lrnbv_drake.station.scenario import Scenario, recorded_scenario
+from lrnbv_drake.station.scenario import MountOffset, Scenario, recorded_scenario
 from lrnbv_drake.station.scenario_checks import check_ranges
 
 
@@ -126,17 +127,31 @@ def first_poses(episode: RecordedEpisode, n: int) -> RecordedEpisode:
                       cell_boxes=episode.cell_boxes[:n], reported=None)
 
 
+def remounted(readings: list[tuple[ToFFrame, np.ndarray]], recorded: MountOffset,
+              commissioned: MountOffset) -> list[tuple[ToFFrame, np.ndarray]]:
+    """`readings` with each sensor pose moved from the mount it was recorded under to
+    another: X_WS' = X_WS X_CS(recorded)^-1 X_CS(commissioned), the same flange pose."""
+    change = (np.linalg.inv(offset_transform(recorded.xyz_mm, recorded.rpy_deg))
+              @ offset_transform(commissioned.xyz_mm, commissioned.rpy_deg))
+    return [(frame, np.asarray(X_WS, float) @ change) for frame, X_WS in readings]
+
+
 def refit(episode: RecordedEpisode, scenario: Scenario) -> dict[str, Any]:
     """The box, its interval and container from `episode`'s readings under `scenario` (the
-    episode's own, or it with a calibrated `sensor:` section, other `estimation:` settings
-    or another estimator), with the errors against the truth for a simulated episode. The
-    fields are report.json's.
+    episode's own, or it with a calibrated `sensor:` section, a commissioned mount, other
+    `estimation:` settings or another estimator), with the errors against the truth for a
+    simulated episode. The fields are report.json's. A commissioned `sensor.mount` moves
+    every recorded sensor pose to it (`remounted`) and rebuilds the map from them.
 
     Raises:
         ScenarioError: a field of `scenario` out of range or not one of its choices.
     """
     check_ranges(scenario)
-    track = estimate_readings(scenario, episode.readings, episode.cell_boxes)
+    readings, boxes = episode.readings, episode.cell_boxes
+    if scenario.sensor.mount != episode.scenario.sensor.mount:
+        readings = remounted(readings, episode.scenario.sensor.mount, scenario.sensor.mount)
+        boxes = cell_boxes(scenario, readings)
+    track = estimate_readings(scenario, readings, boxes)
     entry = box_entry(scenario, track.latest)
     out: dict[str, Any] = {
         "folder": str(episode.folder),

@@ -19,7 +19,7 @@ from pydrake.geometry import (
     Meshcat,
     SceneGraph,
 )
-from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.math import RigidTransform
 from pydrake.multibody.parsing import (
     LoadModelDirectives,
     ModelDirectives,
@@ -32,6 +32,7 @@ from pydrake.systems.lcm import ApplyLcmBusConfig
 from pydrake.visualization import ApplyVisualizationConfig
 
 from lrnbv_drake.core.evaluation import objects
+from lrnbv_drake.core.robot.poses import offset_transform
 from lrnbv_drake.core.robot.safety import RobotInterface
 from lrnbv_drake.drivers.tof_serial import ToFSerialReader
 from lrnbv_drake.station.resources import make_parser, resolve_url
@@ -213,8 +214,7 @@ def add_frustum(plant: MultibodyPlant, scene_graph: SceneGraph, tof_frame: Frame
 
 def offset_pose(offset: MountOffset) -> RigidTransform:
     """A `MountOffset` as the pose of the sensor in the CAD mount's `tof` frame."""
-    return RigidTransform(RollPitchYaw(np.deg2rad(offset.rpy_deg)),
-                          np.asarray(offset.xyz_mm, float) / 1000)
+    return RigidTransform(offset_transform(offset.xyz_mm, offset.rpy_deg))
 
 
 def sensor_on_tool0(plant: MultibodyPlant, scenario: Scenario) -> RigidTransform:

@@ -29,7 +29,7 @@ import scipy.optimize
 from scipy.spatial.transform import Rotation
 
 from lrnbv_drake.core.estimation.forward import ReadingRule, zone_losses
-from lrnbv_drake.core.robot.poses import look_at
+from lrnbv_drake.core.robot.poses import look_at, offset_transform
 from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 from lrnbv_drake.core.sensing.zone_order import ZONE_ROTATIONS, restore_zones
@@ -103,14 +103,6 @@ class CommissioningFit:
         return float(self.values[6]) / 1000
 
 
-def mount_transform(xyz_mm: np.ndarray, rpy_deg: np.ndarray) -> np.ndarray:
-    """(4, 4) X_CS of a mount offset (Drake's roll-pitch-yaw: Rz Ry Rx)."""
-    X = np.eye(4)
-    X[:3, :3] = Rotation.from_euler("xyz", rpy_deg, degrees=True).as_matrix()
-    X[:3, 3] = np.asarray(xyz_mm, float) / 1000
-    return X
-
-
 def table_view_poses(center_xy: np.ndarray, table_height: float) -> list[np.ndarray]:
     """X_WS of the views commissioning plans around `center_xy` on the table: straight down
     from three heights, and rings tilted 40 and 60 degrees from vertical looking at the centre
@@ -177,7 +169,7 @@ def _plane_depths(o: np.ndarray, d: np.ndarray, plane: np.ndarray, at_xy: np.nda
 
 def _residuals(theta: np.ndarray, views: list[_Readings], rule: ReadingRule,
                at_xy: np.ndarray, extent: np.ndarray) -> np.ndarray:
-    X_CS = mount_transform(theta[:3], theta[3:6])
+    X_CS = offset_transform(theta[:3], theta[3:6])
     plane = np.array([theta[6] / 1000, *np.tan(np.deg2rad(theta[7:9]))])
     out = []
     for v in views:

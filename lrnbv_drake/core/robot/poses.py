@@ -9,6 +9,7 @@ import math
 
 import numba
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 @numba.njit(cache=True)
@@ -63,6 +64,15 @@ def look_at_batch(eyes: np.ndarray, targets: np.ndarray,
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
     """X_WS (4x4) of a sensor at `eye` looking at `target` (see `look_at_batch`)."""
     return look_at_batch(eye, target, up)[0]
+
+
+def offset_transform(xyz_mm, rpy_deg) -> np.ndarray:
+    """(4, 4) pose of an offset given as millimetres and Drake's roll-pitch-yaw in degrees
+    (R = Rz(yaw) Ry(pitch) Rx(roll)): a sensor's mount against its CAD frame."""
+    X = np.eye(4)
+    X[:3, :3] = Rotation.from_euler("xyz", rpy_deg, degrees=True).as_matrix()
+    X[:3, 3] = np.asarray(xyz_mm, float) / 1000
+    return X
 
 
 def compile_kernels() -> None:
