@@ -160,9 +160,11 @@ def _cell_box_entry(box: OrientedBox | None) -> dict[str, Any] | None:
 
 #: What report.json says when the readings misfit the model, and the command that fixes it.
 MISFIT_NOTE = ("the readings misfit the sensor model beyond what its noise allows: the "
-               "sensor model is not this device's, or the object has parts the estimate "
-               "does not draw; the interval and the container's margin are widened by the "
-               "misfit. Calibrate the model with `lrnbv sensor characterize` "
+               "sensor model is not this device's, the sensor's mount or the table is not "
+               "where the model assumes, or the object has parts the estimate does not "
+               "draw; the interval and the container's margin are widened by the misfit. "
+               "Commission the cell with `lrnbv hardware commission` (docs/hardware.md) and "
+               "calibrate the model with `lrnbv sensor characterize` "
                "(docs/sensor-calibration.md), then `lrnbv refit` this folder")
 
 
