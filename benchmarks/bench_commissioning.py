@@ -48,12 +48,13 @@ def main() -> None:
           " | table error (mm) | order found | cycle (s) | wall (s) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     worst = {}
-    for (label, noise), (mount, table, order) in itertools.product(
-            NOISE.items(), draws(args.draws, args.seed)):
+    for (label, noise), (i, (mount, table, order)) in itertools.product(
+            NOISE.items(), enumerate(draws(args.draws, args.seed))):
         device = (f"mount: {{xyz_mm: {mount[:3].round(2).tolist()}, "
                   f"rpy_deg: {mount[3:].round(2).tolist()}}}, table_offset_mm: {table:.2f}, "
                   f"zone_order: {{rotate: {order[0]}, flip: {order[1]}}}, {noise}")
-        scenario = load_scenario(data=f"device: {{{device}}}")
+        # Each draw its own noise (the scenario's seed).
+        scenario = load_scenario(data=f"seed: {args.seed + i}\ndevice: {{{device}}}")
         started = time.perf_counter()
         with tempfile.TemporaryDirectory() as out:
             result = commission_simulated(scenario, Path(out))
