@@ -169,3 +169,12 @@ def test_the_model_takes_the_commissioned_mount_in_its_pose_and_its_inverse_kine
     uncommissioned, _, _ = capture(f"{NOISE_FREE}, {mount}")
     assert np.abs(uncommissioned.distance_mm[valid].astype(int)
                   - nominal.distance_mm[valid]).max() >= 3
+
+
+def test_the_simulated_table_stays_where_it_is_whatever_height_the_model_assumes():
+    # A commissioned cell.table_height moves the model's table, not the simulated one: the
+    # object rests on the table the directives weld, raised by device.table_offset_mm.
+    _, _, placed = capture(f"{NOISE_FREE}, table_offset_mm: 5",
+                           scenario_text="cell: {table_height: 0.004}")
+    assert placed.table_height == pytest.approx(0.005)
+    assert placed.mesh.bounds[0, 2] == pytest.approx(0.005)

@@ -111,12 +111,16 @@ def apply_visualization(builder: DiagramBuilder, scenario: Scenario, plant: Mult
                              scene_graph=scene_graph, meshcat=meshcat)
 
 
-def add_cell_models(plant: MultibodyPlant, scenario: Scenario, table_offset: float = 0.0,
-                    bare_table: bool = False) -> CellModels:
+def add_cell_models(plant: MultibodyPlant, scenario: Scenario,
+                    table_offset: float | None = None, bare_table: bool = False) -> CellModels:
     """Adds the robot, table and sensor mount (from the directives) and, unless `bare_table`,
-    the object to `plant`. `table_offset` (m) raises the table, and the object resting on it,
-    above where the scenario says it is: a simulated cell off its model
-    (`device.table_offset_mm`).
+    the object to `plant`.
+
+    With `table_offset` None the object rests on `cell.table_height`: the cell as the model
+    sees it (the motion planner's, the real cell's). A number (m) builds the simulated world
+    instead: the table where the directives weld it, raised by `table_offset`
+    (`device.table_offset_mm`), and the object resting on it, whatever height the model
+    assumes (a commissioned `cell.table_height` must not move the simulated table).
 
     The object is anchored to the world at its resting pose: it does not move during an episode.
     Its perception (rendered) geometry is the exact mesh; its proximity geometry, which the
@@ -129,15 +133,19 @@ def add_cell_models(plant: MultibodyPlant, scenario: Scenario, table_offset: flo
     if not Path(directives_path).is_file():
         raise ScenarioError(f"field 'cell.directives': no such file '{directives_url}'")
     directives = LoadModelDirectives(directives_path)
+    rests_on = scenario.cell.table_height
+    if table_offset is not None:
+        rests_on = _table_weld(directives, bool(table_offset)).X_PC.translation[2] + table_offset
     if table_offset:
-        _raise_table(directives, table_offset)
+        weld = _table_weld(directives, True)
+        weld.X_PC.translation = weld.X_PC.translation + np.array([0.0, 0.0, table_offset])
     ProcessModelDirectives(directives, plant, parser)
     ur5e = plant.GetModelInstanceByName("ur5e")
     mesh_dir = tempfile.TemporaryDirectory(prefix="lrnbv_object_")
     if bare_table:
         return CellModels(ur5e=ur5e, placed_object=None, mesh_dir=mesh_dir)
 
-    placed = place_object(scenario, table_offset)
+    placed = place_object(scenario, rests_on)
     obj_path = Path(mesh_dir.name) / "object.obj"
     objects.export_obj(placed.mesh, obj_path)
     world = plant.world_body()
@@ -148,33 +156,35 @@ def add_cell_models(plant: MultibodyPlant, scenario: Scenario, table_offset: flo
     return CellModels(ur5e=ur5e, placed_object=placed, mesh_dir=mesh_dir)
 
 
-def _raise_table(directives: ModelDirectives, offset: float) -> None:
-    """Moves the weld that places the model `table` in the world up by `offset` (m)."""
+def _table_weld(directives: ModelDirectives, alone: bool):
+    """The weld that places the model `table` in the world (its top frame at the table top);
+    with `alone`, one that carries nothing else, so that it can move alone."""
     welds = [d.add_weld for d in directives.directives
              if d.add_weld is not None and d.add_weld.parent == "world"
              and d.add_weld.child.startswith("table::")]
     carried = [d.add_weld.child for d in directives.directives
                if d.add_weld is not None and d.add_weld.parent.startswith("table::")]
-    if len(welds) != 1 or carried:
+    if len(welds) != 1 or (alone and carried):
         raise ScenarioError(
             "field 'device.table_offset_mm': expected cell.directives to weld one model named "
             "'table' to the world and nothing to the table, so that it can move alone; got "
             f"{len(welds)} such welds and {carried or 'nothing'} welded to the table")
-    welds[0].X_PC.translation = welds[0].X_PC.translation + np.array([0.0, 0.0, offset])
+    return welds[0]
 
 
-def place_object(scenario: Scenario, table_offset: float = 0.0) -> objects.PlacedObject:
-    """The scenario's object, loaded and resting on the table at its placement (`table_offset`
-    m above the scenario's table height)."""
+def place_object(scenario: Scenario, table_height: float | None = None
+                 ) -> objects.PlacedObject:
+    """The scenario's object, loaded and resting at its placement on a table top at
+    `table_height` (m; by default `cell.table_height`)."""
     cfg = scenario.object
     mesh = objects.load_object_mesh(cfg.name, cfg.scale)
     placement = objects.ObjectPlacement(x=cfg.x, y=cfg.y, yaw=np.deg2rad(cfg.yaw_deg))
-    return objects.place_on_table(mesh, placement,
-                                  table_height=scenario.cell.table_height + table_offset)
+    return objects.place_on_table(mesh, placement, table_height=(
+        scenario.cell.table_height if table_height is None else table_height))
 
 
-def add_cell_plant(builder: DiagramBuilder, scenario: Scenario, table_offset: float = 0.0,
-                   bare_table: bool = False
+def add_cell_plant(builder: DiagramBuilder, scenario: Scenario,
+                   table_offset: float | None = None, bare_table: bool = False
                    ) -> tuple[MultibodyPlant, SceneGraph, CellModels]:
     """Adds a SceneGraph to `builder` and makes the cell's finalized plant, registered with it
     but not added to the builder: nothing integrates it, positions are fed to SceneGraph.
