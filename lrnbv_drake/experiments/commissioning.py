@@ -24,6 +24,7 @@ from lrnbv_drake.core.calibration.commissioning import (
 )
 from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.core.sensing.zone_order import model_flips
+from lrnbv_drake.experiments.recording import frames_to_arrays, write_npz_atomically
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import sensor_behaviour, sensor_params
 from lrnbv_drake.station.scenario import MountOffset, Scenario
@@ -114,12 +115,10 @@ def commission_simulated(scenario: Scenario, out: Path,
 
 
 def save_view(path: Path, q: np.ndarray, X_WC: np.ndarray, frames: list[ToFFrame]) -> None:
-    """One view on disk: joints, CAD sensor pose and its frames."""
-    np.savez(path, q=q, X_WC=X_WC,
-             distance_mm=np.stack([f.distance_mm for f in frames]),
-             status=np.stack([f.status for f in frames]),
-             sigma_mm=np.stack([f.sigma_mm for f in frames]),
-             sequence=np.array([f.sequence for f in frames]))
+    """One view on disk, atomically: its frames (`frames_to_arrays`), joints and CAD sensor
+    pose."""
+    write_npz_atomically(path, {**frames_to_arrays(frames), "q": np.asarray(q, float),
+                                "X_WC": np.asarray(X_WC, float)})
 
 
 def write_commissioning(out: Path, result: Commissioned) -> None:

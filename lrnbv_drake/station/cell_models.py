@@ -135,9 +135,8 @@ def add_cell_models(plant: MultibodyPlant, scenario: Scenario,
     directives = LoadModelDirectives(directives_path)
     rests_on = scenario.cell.table_height
     if table_offset is not None:
-        rests_on = _table_weld(directives, bool(table_offset)).X_PC.translation[2] + table_offset
-    if table_offset:
-        weld = _table_weld(directives, True)
+        weld = _table_weld(directives, alone=bool(table_offset))
+        rests_on = weld.X_PC.translation[2] + table_offset
         weld.X_PC.translation = weld.X_PC.translation + np.array([0.0, 0.0, table_offset])
     ProcessModelDirectives(directives, plant, parser)
     ur5e = plant.GetModelInstanceByName("ur5e")

@@ -237,9 +237,7 @@ def fit_commissioning(views: list[TableView], model: SensorModelParams,
     n, p = len(result.fun), 9
     jtj = result.jac.T @ result.jac
     scale = float(np.sum(result.fun ** 2)) / max(n - p, 1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        covariance = np.linalg.pinv(jtj) * scale
-        sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    sigma = np.sqrt(np.maximum(np.diag(np.linalg.pinv(jtj) * scale), 0.0))
     if np.linalg.matrix_rank(jtj, tol=1e-9 * np.abs(jtj).max()) < p:
         sigma[:] = np.inf
     limits = np.array([tolerance[0]] * 3 + [tolerance[1]] * 3 + [tolerance[0]]
