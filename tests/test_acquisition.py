@@ -135,6 +135,31 @@ def test_one_cycle_moves_settles_records_waits_for_the_map_and_plans_again():
     assert inputs.estimates_read == 1
 
 
+def test_a_view_of_several_frames_records_each_new_frame_with_the_views_info():
+    """frames=3: after the settle, three frames of distinct sequence in a row, no planning
+    between them; a frame seen twice is recorded once; the map's wait after the third."""
+    policy = Scripted([Proposal(candidates=[_pose(0.5)], frames=3, info={"view": 4})])
+    dut = AcquisitionSequencer(policy, ToX(), period=PERIOD, frame_period=FRAME_PERIOD,
+                               settle_frames=1)
+    inputs = Inputs()
+    s = dut.step(dut.initial_state(np.zeros(6)), 0.0, inputs)
+    s = dut.step(s, 1.0, inputs)  # stopped at 1.0: frames begun from 1.1 on are still
+    recorded = []
+    for t, (sequence, begun) in zip((1.15, 1.2, 1.25, 1.3, 1.35, 1.4),
+                                    ((3, 1.05), (4, 1.1), (4, 1.1), (5, 1.2), (5, 1.2),
+                                     (6, 1.3)), strict=True):
+        inputs.frame_value = _frame(sequence, begun)
+        s = dut.step(s, t, inputs)
+        recorded.append((len(s.log.acquisitions), s.mode))
+    assert recorded == [(0, Mode.SETTLE), (1, Mode.SETTLE), (1, Mode.SETTLE),
+                        (2, Mode.SETTLE), (2, Mode.SETTLE), (3, Mode.WAIT_MAP)]
+    assert [a.frame.sequence for a in s.log.acquisitions] == [4, 5, 6]
+    assert all(a.info == {"view": 4, "candidate_rank": 0} for a in s.log.acquisitions)
+    # Each frame's wait counts once: 0.2 s to the first after the stop, then 0.1 s each.
+    np.testing.assert_allclose(s.log.settle_seconds, [0.2, 0.1, 0.1])
+    assert len(policy.observations) == 1
+
+
 def test_unreachable_candidates_fall_through_to_the_next_and_failures_end_the_episode():
     motion = ToX()
     policy = Scripted([Proposal(candidates=[_pose(-1), _pose(0.3)])]

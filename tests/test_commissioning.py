@@ -10,15 +10,21 @@ import numpy as np
 import pytest
 import yaml
 
-from lrnbv_drake.cli.main import main
+from lrnbv_drake.core.acquisition import Acquisition
 from lrnbv_drake.core.calibration.commissioning import (
+    VIEW,
     CommissioningError,
     TableView,
+    TableViews,
     fit_commissioning,
     table_view_poses,
+    views_of,
 )
+from lrnbv_drake.core.planning.policy import Observation
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.core.sensing.zone_order import ZONE_ROTATIONS, reorder_frame
-from lrnbv_drake.experiments.commissioning import cad_scenario
+from lrnbv_drake.experiments.commissioning import commission_simulated, commissioning_scenario
+from lrnbv_drake.station.hardware_config import HardwareConfig
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import sensor_behaviour, sensor_params
 from lrnbv_drake.station.scenario import load_scenario
@@ -36,7 +42,7 @@ BOUND = np.array([0.6] * 3 + [0.06] * 3 + [0.6, 0.06, 0.06])
 @pytest.fixture(scope="module")
 def rendered():
     """The planned views of the bare table, one noise-free frame each, and the fit's inputs."""
-    scenario = cad_scenario(load_scenario(data=OFF_CELL))
+    scenario = commissioning_scenario(load_scenario(data=OFF_CELL))
     cell = make_sim_cell(scenario, bare_table=True)
     motion = MotionPlanner(scenario, bare_table=True)
     context = cell.diagram.CreateDefaultContext()
@@ -86,16 +92,17 @@ def test_views_at_one_height_and_tilt_are_refused_naming_what_they_cannot_tell(r
         fit_commissioning(ring, **inputs)
 
 
-def test_the_dry_run_writes_a_section_the_model_takes(tmp_path, capsys):
-    off = ("{device: {mount: {xyz_mm: [2, -2, 1], rpy_deg: [1.5, 1, 3]}, "
-           "table_offset_mm: 5, zone_order: {rotate: 270, flip: cols}}}")
-    assert main(["hardware", "commission", "--out", str(tmp_path / "c"),
-                 "--scenario-text", off]) == 2  # the real arm: refused, nothing moved
-    assert "only --dry-run" in capsys.readouterr().err
-    assert main(["hardware", "commission", "--dry-run", "--out", str(tmp_path / "c"),
-                 "--scenario-text", off]) == 0
-    assert len(list((tmp_path / "c" / "views").glob("*.npz"))) >= 12  # each view on disk
-    section = tmp_path / "c" / "commissioning.yaml"
+def test_the_simulated_run_writes_a_section_the_model_takes(tmp_path):
+    """The views through the episode's acquisition loop, the fit, and the section: the
+    scenario it makes carries the mount, the flips that read the board, the table and the
+    commissioning's record."""
+    off = ("device: {mount: {xyz_mm: [2, -2, 1], rpy_deg: [1.5, 1, 3]}, "
+           "table_offset_mm: 5, zone_order: {rotate: 270, flip: cols}}")
+    result = commission_simulated(load_scenario(data=off), tmp_path)
+    assert result.views >= 12 and len(result.skipped) == 15 - result.views
+    frames = np.load(tmp_path / "frames.npz")["q"]
+    assert len(frames) == result.views * HardwareConfig().commission_frames
+    section = tmp_path / "commissioning.yaml"
     scenario = load_scenario(filename=section)
     np.testing.assert_allclose(scenario.sensor.mount.rpy_deg, MOUNT_RPY_DEG, atol=0.2)
     np.testing.assert_allclose(scenario.sensor.mount.xyz_mm, MOUNT_XYZ_MM, atol=2.5)
@@ -103,4 +110,42 @@ def test_the_dry_run_writes_a_section_the_model_takes(tmp_path, capsys):
     # The board's order (270, cols) is (90, rows) mirrored back: the flips that read it.
     assert (scenario.sensor.flip_x, scenario.sensor.flip_y, scenario.sensor.transpose) == \
         (True, True, True)
+    assert "lrnbv hardware commission" in scenario.sensor.commissioned
     assert yaml.safe_load(section.read_text()).keys() == {"sensor", "cell"}
+
+
+def _at(x: float) -> np.ndarray:
+    X = np.eye(4)
+    X[0, 3] = x
+    return X
+
+
+def test_the_views_policy_takes_each_view_in_turn_passing_over_those_out_of_reach():
+    dut = TableViews([_at(x) for x in (0.1, 0.2, 0.3)], frames=4)
+    seen = Observation(time=0.0, q=np.zeros(6), X_WS=np.eye(4))
+    first = dut.propose(seen)
+    assert first.frames == 4 and [X[0, 3] for X in first.candidates] == [0.1, 0.2, 0.3]
+    assert [c[VIEW] for c in first.candidate_info] == [0, 1, 2]
+    dut.accepted(1, seen)  # view 0 out of reach: the loop moved to view 1
+    assert [c[VIEW] for c in dut.propose(seen).candidate_info] == [2]
+    dut.accepted(0, seen)
+    assert dut.propose(seen).done
+
+
+@pytest.mark.parametrize(("recorded", "next_view"), [([0] * 3 + [1] * 3, 2), ([0] * 3 + [1], 1)])
+def test_a_resumed_views_policy_takes_a_view_cut_short_again(recorded, next_view):
+    dut = TableViews([_at(x) for x in (0.1, 0.2, 0.3)], frames=3)
+    dut.restore([Acquisition(i, 0.0, np.zeros(6), np.eye(4), ToFFrame.empty(), {VIEW: v})
+                 for i, v in enumerate(recorded)])
+    proposal = dut.propose(Observation(time=0.0, q=np.zeros(6), X_WS=np.eye(4)))
+    assert proposal.candidate_info[0][VIEW] == next_view
+
+
+def test_consecutive_frames_of_a_view_make_one_table_view_from_its_first_pose():
+    frames = [dc.replace(ToFFrame.empty(), sequence=k + 1) for k in range(5)]
+    views = [0, 0, 2, 2, 0]  # a view taken again after a stop is a view of its own
+    acquisitions = [Acquisition(k, 0.0, np.zeros(6), _at(0.1 * k), f, {VIEW: v})
+                    for k, (f, v) in enumerate(zip(frames, views, strict=True))]
+    out = views_of(acquisitions)
+    assert [[f.sequence for f in v.frames] for v in out] == [[1, 2], [3, 4], [5]]
+    assert [v.X_WC[0, 3] for v in out] == pytest.approx([0.0, 0.2, 0.4])

@@ -41,6 +41,7 @@ pytestmark = pytest.mark.usefixtures("compiled_kernels")
 SCENARIO = """
 max_poses: 2
 robot: {robot_ip: fake-ur5e}
+sensor: {commissioned: "the simulated board, on the CAD mount"}
 hardware: {sensor_driver: simulated}
 """
 

@@ -1,28 +1,38 @@
 """`lrnbv hardware commission`: measure the sensor's mount, its zone order and the table from
 the arm's own views of the bare table (docs/hardware.md, Commissioning).
 
-    lrnbv hardware commission --dry-run --out DIR [--scenario FILE] [--frames N]
+    lrnbv hardware commission --robot-ip IP --sensor-port PORT --out DIR [--scenario FILE]
+                              [--yes] [--meshcat]
+    lrnbv hardware commission --dry-run --out DIR [--scenario FILE]
+    lrnbv hardware --resume DIR        (after a stop: takes the views left, then fits)
 
-Each view is on disk (DIR/views/NN.npz) before the next motion; the fit writes
-DIR/commissioning.yaml, the section `run`, `hardware` and `refit` take with --scenario, and
-DIR/commissioning.json, each value with its standard error. Only the simulated cell runs so
-far (--dry-run, the device as the scenario's `device:` sets it); on the real arm the command
-refuses.
+The arm takes the planned views as a session of `lrnbv hardware` (the same confirmation,
+safety checks, journal and faults): every frame is in DIR/acquisitions.jsonl before the next
+motion. The fit writes DIR/commissioning.yaml, the section `run`, `hardware` and `refit`
+take with --scenario, and DIR/commissioning.json, each value with its standard error. The dry
+run plays the views back on the simulated cell, its device as the scenario's `device:` sets
+it, in real time.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
+from pathlib import Path
 
-from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir
+from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir, remove_if_empty
 from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
 from lrnbv_drake.core.calibration.commissioning import PARAMETERS, CommissioningError
-from lrnbv_drake.experiments.commissioning import FRAMES_PER_VIEW, commission_simulated
+from lrnbv_drake.core.robot.safety import RobotConnectionError, RobotFault
+from lrnbv_drake.drivers.tof_serial import SensorError, check_port_exists
+from lrnbv_drake.experiments.commissioning import Commissioned, commission_cell
+from lrnbv_drake.experiments.episode import make_meshcat
+from lrnbv_drake.experiments.session import SessionError, SessionResult
 from lrnbv_drake.station.scenario import ScenarioError
 from lrnbv_drake.station.scenario_checks import check_ranges
 
-EXIT_DONE, EXIT_ERROR = 0, 2
+EXIT_DONE, EXIT_FAULT, EXIT_ERROR = 0, 1, 2
 
 
 def add_commission_command(subparsers: argparse._SubParsersAction) -> None:
@@ -31,42 +41,71 @@ def add_commission_command(subparsers: argparse._SubParsersAction) -> None:
                                                  "the table from views of the bare table",
                               description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--robot-ip", help="the UR controller's address (robot.robot_ip)")
+    p.add_argument("--sensor-port", help="the sensor board's serial port (sensor.serial_port)")
     p.add_argument("--out", required=True, help="output folder (new, or empty)")
     p.add_argument("--dry-run", action="store_true",
-                   help="commission the simulated cell (its `device:` off the model)")
-    p.add_argument("--frames", type=int, default=FRAMES_PER_VIEW,
-                   help=f"frames averaged at each view (default {FRAMES_PER_VIEW})")
+                   help="commission the simulated cell (its `device:` off the model); nothing "
+                        "moves")
+    p.add_argument("--yes", action="store_true", help="do not ask before moving the robot")
+    p.add_argument("--meshcat", action="store_true",
+                   help="serve the live Meshcat view on every interface")
     add_scenario_arguments(p)
 
 
-def run_commission_command(args: argparse.Namespace) -> int:
-    """Runs `lrnbv hardware commission`; returns the exit code."""
-    if not args.dry_run:
-        print("lrnbv hardware commission: error: only --dry-run (the simulated cell) runs so "
-              "far; commissioning the real arm is not built yet, and nothing moved",
-              file=sys.stderr)
+def run_commission_command(args: argparse.Namespace, confirm: Callable[[str], bool]) -> int:
+    """Runs `lrnbv hardware commission`; returns the exit code. `confirm` asks the operator
+    before the arm moves, as for `lrnbv hardware`."""
+    if not args.dry_run and args.robot_ip is None and args.scenario is None:
+        print("lrnbv hardware commission: error: --robot-ip and --sensor-port required (or a "
+              "--scenario that sets them, or --dry-run)", file=sys.stderr)
         return EXIT_ERROR
-    if args.frames < 1:
-        print(f"lrnbv hardware commission: error: --frames must be >= 1; got {args.frames}",
-              file=sys.stderr)
-        return EXIT_ERROR
+    new_dir = None
     try:
-        scenario = load_with_overrides(args, {})
+        scenario = load_with_overrides(args, {"robot": {"robot_ip": args.robot_ip},
+                                              "sensor": {"serial_port": args.sensor_port}})
         check_ranges(scenario)
-        out = prepare_out_dir(args.out, "hardware commission")
-        result = commission_simulated(scenario, out, args.frames)
-    except (ScenarioError, OutDirError, CommissioningError) as e:
-        print(f"lrnbv hardware commission: error: {e}", file=sys.stderr)
+        if not args.dry_run and scenario.hardware.sensor_driver == "serial":
+            check_port_exists(scenario.sensor.serial_port)  # before reaching the robot
+        new_dir = None if Path(args.out).exists() else Path(args.out)
+        out = prepare_out_dir(args.out, "hardware")
+        meshcat = make_meshcat(live=args.meshcat)
+        if meshcat is not None:
+            print(f"Meshcat: {meshcat.web_url()}")
+        result, done = commission_cell(scenario, out, confirm=confirm, meshcat=meshcat,
+                                       dry_run=args.dry_run)
+    except (ScenarioError, OutDirError, SensorError, SessionError, RobotConnectionError,
+            RobotFault, OSError) as e:
+        print(f"lrnbv hardware commission: nothing moved: {e}", file=sys.stderr)
         return EXIT_ERROR
-    fit = result.fit
-    print(f"{result.views} views of the bare table ({len(result.skipped)} unreachable), "
+    except CommissioningError as e:
+        print(f"lrnbv hardware commission: the views are in {args.out}, but {e}",
+              file=sys.stderr)
+        return EXIT_ERROR
+    finally:
+        if new_dir is not None:  # a start that failed or was declined leaves no empty folder
+            remove_if_empty(new_dir)
+    return summarize_commissioning(result, done)
+
+
+def summarize_commissioning(result: SessionResult, done: Commissioned | None) -> int:
+    """Prints what a commissioning session measured, or why it stopped; the exit code."""
+    if result.fault == "declined":
+        print(result.termination)
+        return EXIT_ERROR
+    if result.fault is not None or done is None:
+        print(f"{result.n_poses} frames; STOPPED ({result.fault}): {result.termination}",
+              file=sys.stderr)
+        return EXIT_FAULT
+    fit = done.fit
+    print(f"{done.views} views of the bare table ({len(done.skipped)} unreachable), "
           f"{fit.readings} readings, rms {fit.rms:.2f} model sigmas; cycle time "
-          f"{result.cycle_time_s:.1f} s")
+          f"{done.cycle_time_s:.1f} s")
     for name, value, sigma in zip(PARAMETERS, fit.values, fit.sigma, strict=True):
         print(f"  {name:26s} {value:9.3f} +- {sigma:.3f}")
     print(f"  zone order: turned {fit.zone_order[0]} deg, flip '{fit.zone_order[1]}'")
-    for note in result.notes:
+    for note in done.notes:
         print(f"note: {note}")
-    print(f"wrote {out / 'commissioning.yaml'} (pass it with --scenario) and "
-          f"{out / 'commissioning.json'}")
+    print(f"wrote {result.out_dir / 'commissioning.yaml'} (pass it with --scenario) and "
+          f"{result.out_dir / 'commissioning.json'}")
     return EXIT_DONE

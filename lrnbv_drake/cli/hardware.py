@@ -3,7 +3,7 @@
     lrnbv hardware --robot-ip IP --sensor-port PORT --out DIR [--scenario FILE]
                    [--planner lrnbv] [--dry-run] [--yes] [--meshcat]
     lrnbv hardware --resume DIR [--robot-ip IP] [--sensor-port PORT] [--yes] [--meshcat]
-    lrnbv hardware commission --dry-run --out DIR [--scenario FILE]  (cli/commission.py)
+    lrnbv hardware commission [--dry-run] --out DIR ...  (cli/commission.py)
 
 Before the first motion it describes what is about to happen and asks for `yes` on stdin
 (`--yes` skips the question; a dry run never asks). Everything captured is in DIR as it
@@ -17,13 +17,20 @@ import json
 import sys
 from pathlib import Path
 
-from lrnbv_drake.cli.commission import add_commission_command, run_commission_command
+from lrnbv_drake.cli.commission import (
+    add_commission_command,
+    run_commission_command,
+    summarize_commissioning,
+)
 from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir, remove_if_empty
 from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
+from lrnbv_drake.core.calibration.commissioning import CommissioningError
 from lrnbv_drake.core.robot.safety import RobotConnectionError, RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorError, check_port_exists
+from lrnbv_drake.experiments.commissioning import fit_session
 from lrnbv_drake.experiments.episode import PLANNERS, make_meshcat
 from lrnbv_drake.experiments.session import SessionError, SessionResult, resume, run_session
+from lrnbv_drake.station.parts import COMMISSION
 from lrnbv_drake.station.scenario import Scenario, ScenarioError
 from lrnbv_drake.station.scenario_checks import check_placement
 
@@ -94,8 +101,9 @@ def _check_args(args: argparse.Namespace) -> str | None:
 
 def run_hardware_command(args: argparse.Namespace) -> int:
     """Runs a command parsed by `add_hardware_commands`; returns the exit code."""
+    confirm = (lambda message: True) if args.yes else ask_on_stdin
     if args.hardware_command == "commission":
-        return run_commission_command(args)
+        return run_commission_command(args, confirm)
     problem = _check_args(args)
     if problem is not None:
         print(f"lrnbv hardware: error: {problem}", file=sys.stderr)
@@ -112,7 +120,6 @@ def run_hardware_command(args: argparse.Namespace) -> int:
     except (ScenarioError, OutDirError, SensorError) as e:
         print(f"lrnbv hardware: error: {e}", file=sys.stderr)
         return EXIT_ERROR
-    confirm = (lambda message: True) if args.yes else ask_on_stdin
     meshcat = make_meshcat(live=args.meshcat)
     if meshcat is not None:
         print(f"Meshcat: {meshcat.web_url()}")
@@ -131,6 +138,12 @@ def run_hardware_command(args: argparse.Namespace) -> int:
     finally:
         if new_dir is not None:  # a start that failed or was declined leaves no empty folder
             remove_if_empty(new_dir)
+    if result.planner == COMMISSION:  # a commissioning session carried on
+        try:
+            return summarize_commissioning(result, fit_session(result))
+        except CommissioningError as e:
+            print(f"lrnbv hardware: the views are in {result.out_dir}, but {e}", file=sys.stderr)
+            return EXIT_ERROR
     return _summarize(result)
 
 

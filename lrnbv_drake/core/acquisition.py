@@ -6,7 +6,8 @@ it, let the map take it in, plan again.
     PLAN      ask the policy for ranked viewpoints; plan a motion to the first reachable one
     MOVE      play the trajectory (`command`) until it ends
     SETTLE    wait for a frame whose integration began `settle_frames` frame periods after
-              the stop, then record it as an `Acquisition`
+              the stop, then record it as an `Acquisition`; a proposal of `frames` > 1
+              records that many consecutive frames at the view (each a new frame)
     WAIT_MAP  wait 1.5 ticks: the map inserts the frame on the next tick, the planner reads
               the updated map on the one after; then PLAN
     DONE      the policy is done, the stop rule says the reported box is known (`stop`, reading
@@ -163,6 +164,11 @@ class AcquisitionState:
     t_ready: float = 0.0
     pending_info: dict[str, Any] = dc.field(default_factory=dict)
     failed_in_a_row: int = 0
+    # Frames still to record at this view, the sequence of its last one recorded (0: none), and
+    # since when the loop has waited for the next (the stop, or the view's last frame).
+    frames_left: int = 1
+    last_sequence: int = 0
+    t_waiting: float = 0.0
 
 
 class AcquisitionInputs(Protocol):
@@ -227,10 +233,11 @@ class AcquisitionSequencer:
         if s.mode is Mode.MOVE and t >= s.trajectory.end_time():
             s.hold = np.asarray(s.trajectory.value(s.trajectory.end_time()), float).ravel()
             s.trajectory = None
-            s.mode, s.t_stop = Mode.SETTLE, t
+            s.mode, s.t_stop, s.t_waiting = Mode.SETTLE, t, t
         elif s.mode is Mode.SETTLE:
             frame = inputs.frame()
-            if frame.sequence > 0 and frame.timestamp_us >= (s.t_stop + self._settle) * 1e6 - 1:
+            if (frame.sequence > 0 and frame.sequence != s.last_sequence
+                    and frame.timestamp_us >= (s.t_stop + self._settle) * 1e6 - 1):
                 self._record(s, t, frame, inputs)
         elif s.mode is Mode.WAIT_MAP and t >= s.t_ready:
             s.mode = Mode.PLAN
@@ -250,7 +257,11 @@ class AcquisitionSequencer:
         s.log.acquisitions.append(Acquisition(
             index=len(s.log.acquisitions), time=t, q=q, X_WS=X_WS, frame=frame,
             info=s.pending_info))
-        s.log.settle_seconds.append(t - s.t_stop)
+        s.log.settle_seconds.append(t - s.t_waiting)
+        s.last_sequence, s.t_waiting = frame.sequence, t
+        s.frames_left -= 1
+        if s.frames_left > 0:  # the view's next frame, each with the view's info
+            return
         s.pending_info = {}
         s.mode, s.t_ready = Mode.WAIT_MAP, t + 1.5 * self._period
 
@@ -294,6 +305,7 @@ class AcquisitionSequencer:
                 s.log.travel_seconds.append(plan.trajectory.end_time() - t)
                 per_candidate = proposal.candidate_info[i] if proposal.candidate_info else {}
                 s.pending_info = {**proposal.info, **per_candidate, CANDIDATE_RANK: i}
+                s.frames_left, s.last_sequence = proposal.frames, 0
                 s.log.plan = {**proposal.debug, "step": len(s.log.policy_seconds),
                               "X_WS": np.asarray(X_WS)}
                 break

@@ -1,7 +1,14 @@
-"""Commissioning on the simulated cell (`lrnbv hardware commission --dry-run`): the arm takes
-the planned views of the bare table, every view is on disk before the next motion, and the
-fit (`core.calibration.commissioning`) gives the scenario section that `run`, `hardware` and
+"""Commissioning a cell (`lrnbv hardware commission`): the arm takes the planned views of the
+bare table through the episode's own acquisition loop (the `TableViews` policy,
+`hardware.commission_frames` frames at each view), and the fit
+(`core.calibration.commissioning`) gives the scenario section that `run`, `hardware` and
 `refit` take with `--scenario`.
+
+On the real cell, and in its dry run (the playback robot and the simulated board, in real
+time), the views are a session of `experiments.session`: every frame is in
+`acquisitions.jsonl` before the next motion, a fault stops the arm, and `lrnbv hardware
+--resume DIR` carries on and then fits. `commission_simulated` takes the same views on the
+simulated cell as fast as it computes (the benchmark, the campaigns, the tests).
 
 The views are taken and fitted against the CAD mount and the board's own zone order (the
 scenario's `sensor.mount` and flips are what is measured, so they are set aside here).
@@ -11,27 +18,34 @@ from __future__ import annotations
 
 import dataclasses as dc
 import json
+import time
 from pathlib import Path
 
 import numpy as np
+from pydrake.geometry import Meshcat
 
+from lrnbv_drake.core.acquisition import EpisodeLog, cycle_time
 from lrnbv_drake.core.calibration.commissioning import (
     PARAMETERS,
+    VIEW,
+    CommissioningError,
     CommissioningFit,
-    TableView,
     fit_commissioning,
     table_view_poses,
+    views_of,
 )
-from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.core.sensing.zone_order import model_flips
-from lrnbv_drake.experiments.recording import frames_to_arrays, write_npz_atomically
-from lrnbv_drake.station.motion import MotionPlanner
-from lrnbv_drake.station.parts import sensor_behaviour, sensor_params
-from lrnbv_drake.station.scenario import MountOffset, Scenario
-from lrnbv_drake.station.sim_cell import make_sim_cell
+from lrnbv_drake.experiments.episode import build_episode, run_loop
+from lrnbv_drake.experiments.recording import save_frames, write_atomically
+from lrnbv_drake.experiments.session import (
+    SESSION_FILE,
+    Confirm,
+    SessionResult,
+    run_session,
+)
+from lrnbv_drake.station.parts import COMMISSION, sensor_behaviour, sensor_params
+from lrnbv_drake.station.scenario import MountOffset, Scenario, load_scenario
 
-#: Frames averaged at each view (two thirds of a second at 15 Hz).
-FRAMES_PER_VIEW = 10
 #: A table slope worth levelling, degrees: 1 mm over 0.6 m of table. The model assumes a
 #: level table.
 LEVEL_SLOPE_DEG = 0.1
@@ -49,55 +63,69 @@ class Commissioned:
     notes: tuple[str, ...]
 
 
-def cad_scenario(scenario: Scenario) -> Scenario:
-    """`scenario` with the model on the CAD mount, the board's own zone order and the views
-    exactly as planned (no roll about the axis): what commissioning measures against."""
+def commissioning_scenario(scenario: Scenario) -> Scenario:
+    """`scenario` as commissioning runs it: the model on the CAD mount and the board's own
+    zone order (what is measured), the views exactly as planned (no roll about the axis),
+    and room for every frame of every view."""
     sensor = dc.replace(scenario.sensor, mount=MountOffset(), flip_x=False, flip_y=False,
-                        transpose=False)
+                        transpose=False, commissioned="")
     robot = dc.replace(scenario.robot, sensor_roll_step_deg=0.0)
-    return dc.replace(scenario, sensor=sensor, robot=robot)
+    views = len(table_view_poses(np.zeros(2), 0.0))
+    return dc.replace(scenario, sensor=sensor, robot=robot,
+                      max_poses=views * scenario.hardware.commission_frames)
 
 
-def commission_simulated(scenario: Scenario, out: Path,
-                         frames_per_view: int = FRAMES_PER_VIEW) -> Commissioned:
+def commission_simulated(scenario: Scenario, out: Path) -> Commissioned:
     """Takes the commissioning views on the simulated cell (the device as `device:` sets it,
-    the table bare) and fits them; writes `views/NN.npz` as each is taken, then
+    the table bare) and fits them; writes `frames.npz` (every frame with its pose and joints),
     `commissioning.yaml` (the section) and `commissioning.json` (values, errors, orders)."""
-    cad = cad_scenario(scenario)
-    cell = make_sim_cell(cad, bare_table=True)
-    motion = MotionPlanner(cad, bare_table=True)
-    context = cell.diagram.CreateDefaultContext()
-    tof = cell.diagram.GetSubsystemByName("tof")
-    period = scenario.sensor.period
-    views_dir = Path(out) / "views"
-    views_dir.mkdir(parents=True, exist_ok=True)
-    q, t, sequence = np.asarray(scenario.robot.initial_position, float), 0.0, 0
-    views, skipped = [], []
+    run = run_loop(build_episode(commissioning_scenario(scenario), COMMISSION))
+    if run.fault is not None:
+        raise CommissioningError(f"the simulated views stopped: {run.termination}")
+    save_frames(Path(out) / "frames.npz", run.log.acquisitions)
+    return commissioned(commissioning_scenario(scenario), run.log, Path(out))
+
+
+def commission_cell(scenario: Scenario, out_dir: Path, *, confirm: Confirm,
+                    meshcat: Meshcat | None = None, dry_run: bool = False
+                    ) -> tuple[SessionResult, Commissioned | None]:
+    """Takes the views on the real cell (or its dry run) as a session in `out_dir`
+    (`experiments.session.run_session`), then fits them; the fit is None when the session
+    did not take every view (a fault, or the operator declined)."""
+    result = run_session(commissioning_scenario(scenario), COMMISSION, out_dir,
+                         confirm=confirm, meshcat=meshcat, dry_run=dry_run)
+    return result, fit_session(result)
+
+
+def fit_session(result: SessionResult) -> Commissioned | None:
+    """The fit of a commissioning session that took every view (a new one, or one carried on
+    by `experiments.session.resume`: its views before and after the stop); None after a
+    fault or a declined start."""
+    if result.fault is not None:
+        return None
+    session = json.loads((result.out_dir / SESSION_FILE).read_text())
+    return commissioned(load_scenario(data=session["scenario"]), result.log, result.out_dir)
+
+
+def commissioned(scenario: Scenario, log: EpisodeLog, out: Path) -> Commissioned:
+    """Fits the views in `log` (taken under `commissioning_scenario`), writes
+    `commissioning.yaml` and `commissioning.json` into `out`, and returns them.
+
+    Raises:
+        CommissioningError: the views cannot tell a value apart (naming it).
+    """
     center = np.asarray(scenario.extraction.center, float)
-    for i, X_WS in enumerate(table_view_poses(center, scenario.cell.table_height)):
-        plan = motion.plan(q, X_WS)
-        if not plan.ok:
-            skipped.append(f"view {i}: {plan.reason}")
-            continue
-        q = plan.q_target
-        t += plan.trajectory.end_time() + (1 + scenario.sensor.settle_frames) * period
-        cell.diagram.GetInputPort("ur5e.position").FixValue(context, q)
-        frames = []
-        for _ in range(frames_per_view):
-            sequence += 1
-            frames.append(tof.CaptureFrame(tof.GetMyContextFromRoot(context), sequence))
-        t += frames_per_view * period
-        X_WC = cell.diagram.GetOutputPort("tof.pose").Eval(context).GetAsMatrix4()
-        save_view(views_dir / f"{i:02d}.npz", q, X_WC, frames)
-        views.append(TableView(X_WC, tuple(frames)))
-    fit = fit_commissioning(views, sensor_params(cad), sensor_behaviour(cad),
+    views = views_of(log.acquisitions)
+    fit = fit_commissioning(views, sensor_params(scenario), sensor_behaviour(scenario),
                             np.asarray(scenario.cell.table_extent, float), center,
                             scenario.cell.table_height)
     flip_x, flip_y, transpose = model_flips(*fit.zone_order)
+    stamp = time.strftime("%Y-%m-%d %H:%M %Z")
     section = {
         "sensor": {"mount": {"xyz_mm": _rounded(fit.mount_xyz_mm),
                              "rpy_deg": _rounded(fit.mount_rpy_deg)},
-                   "flip_x": flip_x, "flip_y": flip_y, "transpose": transpose},
+                   "flip_x": flip_x, "flip_y": flip_y, "transpose": transpose,
+                   "commissioned": f"{stamp}, lrnbv hardware commission into {out}"},
         "cell": {"table_height": round(fit.table_height_m, 5)},
     }
     notes = []
@@ -109,16 +137,21 @@ def commission_simulated(scenario: Scenario, out: Path,
         notes.append(f"the board reports its zones turned {fit.zone_order[0]} deg and "
                      f"flipped '{fit.zone_order[1]}' against the model: the section sets "
                      f"flip_x, flip_y and transpose to read it")
-    result = Commissioned(fit, section, len(views), tuple(skipped), t, tuple(notes))
-    write_commissioning(Path(out), result)
+    planned = table_view_poses(center, scenario.cell.table_height)
+    taken = {a.info[VIEW] for a in log.acquisitions if VIEW in a.info}
+    skipped = tuple(f"view {k}: {_why_not(planned[k], log)}" for k in range(len(planned))
+                    if k not in taken)
+    result = Commissioned(fit, section, len(views), skipped, cycle_time(log).total,
+                          tuple(notes))
+    write_commissioning(out, result)
     return result
 
 
-def save_view(path: Path, q: np.ndarray, X_WC: np.ndarray, frames: list[ToFFrame]) -> None:
-    """One view on disk, atomically: its frames (`frames_to_arrays`), joints and CAD sensor
-    pose."""
-    write_npz_atomically(path, {**frames_to_arrays(frames), "q": np.asarray(q, float),
-                                "X_WC": np.asarray(X_WC, float)})
+def _why_not(X_WS: np.ndarray, log: EpisodeLog) -> str:
+    """The motion planner's reason for not reaching the view at `X_WS`."""
+    reasons = [reason for _, X, _, reason in log.motion_failures
+               if np.allclose(np.asarray(X)[:3, 3], X_WS[:3, 3])]
+    return reasons[-1] if reasons else "not reached"
 
 
 def write_commissioning(out: Path, result: Commissioned) -> None:
@@ -128,9 +161,9 @@ def write_commissioning(out: Path, result: Commissioned) -> None:
     fit = result.fit
     header = ("# The sensor's mount, its zone order and the table as `lrnbv hardware commission`"
               "\n# measured them; pass with --scenario (merge into a scenario file by hand).\n")
-    (out / "commissioning.yaml").write_text(
-        header + yaml.safe_dump(result.section, sort_keys=False, default_flow_style=None))
-    (out / "commissioning.json").write_text(json.dumps({
+    write_atomically(out / "commissioning.yaml", header + yaml.safe_dump(
+        result.section, sort_keys=False, default_flow_style=None))
+    write_atomically(out / "commissioning.json", json.dumps({
         "values": {name: float(v) for name, v in zip(PARAMETERS, fit.values, strict=True)},
         "standard_errors": {name: float(s) for name, s in zip(PARAMETERS, fit.sigma,
                                                                strict=True)},

@@ -47,6 +47,7 @@ from lrnbv_drake.experiments.report_page import report_page
 from lrnbv_drake.station.cell import Cell, make_cell
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import (
+    COMMISSION,
     PLANNERS,
     check_scenario_files,
     episode_estimator,
@@ -96,7 +97,8 @@ class EpisodeDiagram:
     cell: Cell
     loop: AcquisitionLoop
     map_system: OccupancyMapSystem
-    estimation: BoxEstimation
+    # None while commissioning: the bare table has no object to estimate.
+    estimation: BoxEstimation | None
     policy: ViewpointPolicy
 
 
@@ -105,15 +107,16 @@ def build_episode(scenario: Scenario, planner: str, meshcat: Meshcat | None = No
     """The closed-loop diagram of an episode: cell, map, clustering and the acquisition loop.
 
     With `hardware`, the cell is the real one (`make_cell(..., hardware=True)`); everything
-    else is the same diagram. `history` goes to the loop (an episode to carry on); `run_loop`
-    restores the map and the policy to match it.
+    else is the same diagram. The `COMMISSION` planner's cell is the bare table. `history`
+    goes to the loop (an episode to carry on); `run_loop` restores the map and the policy to
+    match it.
 
     Raises:
         ScenarioError: a field out of range or not one of its choices (a scenario built in
             code, not loaded), before anything is made or connected.
     """
     check_ranges(scenario)
-    cell = make_cell(scenario, meshcat, hardware=hardware)
+    cell = make_cell(scenario, meshcat, hardware=hardware, bare_table=planner == COMMISSION)
     try:
         return _around_cell(cell, scenario, planner, meshcat, history)
     except BaseException:
@@ -129,7 +132,7 @@ def _around_cell(cell: Cell, scenario: Scenario, planner: str, meshcat: Meshcat 
     """`build_episode`'s diagram around a cell already made."""
     builder = DiagramBuilder()
     builder.AddNamedSystem("cell", cell.diagram)
-    motion = MotionPlanner(scenario)
+    motion = MotionPlanner(scenario, bare_table=cell.models.placed_object is None)
     policy = make_policy(planner, scenario, motion, cell.models.placed_object)
     period = scenario.sensor.period / 2
     loop = builder.AddNamedSystem("acquisition_loop", AcquisitionLoop(
@@ -137,11 +140,13 @@ def _around_cell(cell: Cell, scenario: Scenario, planner: str, meshcat: Meshcat 
         frame_period=scenario.sensor.period, settle_frames=scenario.sensor.settle_frames,
         max_poses=scenario.max_poses, history=history, stop=make_stop(planner, scenario),
         self_filter=make_self_filter(scenario, motion)))
-    estimation = builder.AddNamedSystem("estimation",
-                                        BoxEstimation(episode_estimator(scenario)))
-    builder.Connect(loop.GetOutputPort("log"), estimation.GetInputPort("log"))
-    builder.Connect(estimation.GetOutputPort("box_estimate"),
-                    loop.GetInputPort("box_estimate"))
+    estimation = None
+    if planner != COMMISSION:
+        estimation = builder.AddNamedSystem("estimation",
+                                            BoxEstimation(episode_estimator(scenario)))
+        builder.Connect(loop.GetOutputPort("log"), estimation.GetInputPort("log"))
+        builder.Connect(estimation.GetOutputPort("box_estimate"),
+                        loop.GetInputPort("box_estimate"))
     occupancy = builder.AddNamedSystem("map", map_system(scenario, period))
     clustering = builder.AddNamedSystem("clustering",
                                         ObjectClustering(extraction_params(scenario)))
@@ -199,7 +204,9 @@ def final_estimates(parts: EpisodeDiagram, root_context: Context) -> tuple[Estim
                                                                            float]:
     """The episode's estimate track with every acquisition in (`BoxEstimation.final_track`),
     and the seconds of the estimates that only this folded in (the loop timed the others
-    in its planning)."""
+    in its planning); an empty track where nothing is estimated (commissioning)."""
+    if parts.estimation is None:
+        return EstimateTrack(), 0.0
     context = parts.estimation.GetMyContextFromRoot(root_context)
     before = len(parts.estimation.made.estimates)
     track = parts.estimation.final_track(context)

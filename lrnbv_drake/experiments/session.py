@@ -74,7 +74,7 @@ from lrnbv_drake.experiments.session_preflight import (
     read_robot,
 )
 from lrnbv_drake.station.hardware_cell import check_hardware_config
-from lrnbv_drake.station.parts import check_scenario_files, packing_decision
+from lrnbv_drake.station.parts import COMMISSION, check_scenario_files, packing_decision
 from lrnbv_drake.station.scenario import Scenario, load_scenario, override
 
 _log = logging.getLogger(__name__)
@@ -101,6 +101,7 @@ class SessionResult:
         moved: the arm may have moved (a real run got as far as commanding it); False for a
             dry run and for a run the operator declined.
         error: the unexpected exception, when `fault` is "error".
+        planner: the session's policy (`PLANNERS`, or `COMMISSION`).
     """
 
     out_dir: Path
@@ -111,6 +112,7 @@ class SessionResult:
     realtime_resets: int = 0
     moved: bool = False
     error: Exception | None = None
+    planner: str = ""
 
     @property
     def n_poses(self) -> int:
@@ -212,9 +214,18 @@ def run_session(scenario: Scenario, planner: str, out_dir: str | Path, *, confir
         dry_run: no robot moves and no sensor is read.
 
     Raises:
-        SessionError, ScenarioError, RobotConnectionError, RobotFault: before anything moved.
+        SessionError, ScenarioError, RobotConnectionError, RobotFault: before anything moved;
+            SessionError also for a sensor never commissioned (`sensor.commissioned` empty)
+            on a real run of a planner.
     """
     out_dir = Path(out_dir)
+    if not dry_run and planner != COMMISSION and not scenario.sensor.commissioned:
+        raise SessionError(
+            "the sensor was never commissioned (sensor.commissioned is empty): its mount, "
+            "zone order and the table are the CAD's, and a board whose zones are turned or "
+            "a bracket a degree off costs centimetres. Run `lrnbv hardware commission` and "
+            "pass its commissioning.yaml with --scenario (or set sensor.commissioned to say "
+            "how they were checked)")
     if (out_dir / SESSION_FILE).exists():
         raise SessionError(f"{out_dir} already holds a session: continue it with `lrnbv "
                            f"hardware --resume {out_dir}` or choose another folder")
@@ -276,7 +287,7 @@ def resume(out_dir: str | Path, *, confirm: Confirm, meshcat: Meshcat | None = N
 
 def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisition],
          confirm: Confirm, meshcat: Meshcat | None, dry_run: bool) -> SessionResult:
-    if planner not in PLANNERS:
+    if planner not in (*PLANNERS, COMMISSION):
         raise SessionError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
     if dry_run:
         scenario = override(scenario, {"hardware": {"robot_driver": "playback",
@@ -296,7 +307,7 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
     if not dry_run and not confirm(_confirmation_text(scenario, planner, out_dir)):
         return SessionResult(out_dir, "the operator did not confirm: nothing moved",
                              "declined", EpisodeLog(acquisitions=list(recorded)),
-                             resumed_from=len(recorded))
+                             resumed_from=len(recorded), planner=planner)
     # Connected first (the control script uploaded, nothing moves yet): a controller that
     # refuses leaves no session behind.
     parts = build_episode(scenario, planner, meshcat, hardware=True,
@@ -349,7 +360,7 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
         result = SessionResult(out_dir, run.termination, run.fault, run.log,
                                resumed_from=len(recorded),
                                realtime_resets=monitors[-1].realtime_resets,
-                               moved=not dry_run, error=run.error)
+                               moved=not dry_run, error=run.error, planner=planner)
         try:
             write_outputs(out_dir, run, _report(planner, scenario, parts, run, result, dry_run,
                                                 sensor_stats), meshcat, scenario)

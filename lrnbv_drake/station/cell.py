@@ -27,7 +27,7 @@ __all__ = ["Cell", "make_cell"]
 
 
 def make_cell(scenario: Scenario, meshcat: Meshcat | None = None,
-              hardware: bool = False) -> Cell:
+              hardware: bool = False, bare_table: bool = False) -> Cell:
     """Builds the cell.
 
     Args:
@@ -35,7 +35,9 @@ def make_cell(scenario: Scenario, meshcat: Meshcat | None = None,
         meshcat: when given, the scene is drawn there.
         hardware: the real cell (UR5e over RTDE, sensor over serial, or the dry run's
             stand-ins) instead of the simulated one; close `cell.hardware` when done.
+        bare_table: the cell without its object (commissioning): the simulated table, the
+            dry run's simulated board and the drawn scene.
     """
     if hardware:
-        return make_hardware_cell(scenario, meshcat)
-    return make_sim_cell(scenario, meshcat)
+        return make_hardware_cell(scenario, meshcat, bare_table=bare_table)
+    return make_sim_cell(scenario, meshcat, bare_table=bare_table)

@@ -151,7 +151,7 @@ def make_robot(scenario: Scenario) -> RobotInterface:
 
 
 def _open_sensor(scenario: Scenario, robot: RobotInterface,
-                 to_close: list[Callable[[], None]]) -> ToFSerialReader:
+                 to_close: list[Callable[[], None]], bare_table: bool) -> ToFSerialReader:
     """Starts the sensor `hardware.sensor_driver` names; registers what to close."""
     s = scenario.sensor
     if scenario.hardware.sensor_driver == "serial":
@@ -161,14 +161,15 @@ def _open_sensor(scenario: Scenario, robot: RobotInterface,
         return driver
     driver = ToFSerialReader("loop://", s.baud).start()
     to_close.append(driver.close)
-    board = SimulatedToFBoard(scenario, lambda: robot.read().q, driver).start()
+    board = SimulatedToFBoard(scenario, lambda: robot.read().q, driver, bare_table).start()
     to_close.append(board.close)
     return driver
 
 
 def make_hardware_cell(scenario: Scenario, meshcat: Meshcat | None = None,
                        robot: RobotInterface | None = None,
-                       sensor_driver: ToFSerialReader | None = None) -> Cell:
+                       sensor_driver: ToFSerialReader | None = None,
+                       bare_table: bool = False) -> Cell:
     """Builds the real cell (see the module docstring for its ports). Call
     `cell.hardware.close()` when done; run it in real time
     (`Simulator.set_target_realtime_rate(1.0)`).
@@ -180,6 +181,8 @@ def make_hardware_cell(scenario: Scenario, meshcat: Meshcat | None = None,
             ownership of one passed in.
         sensor_driver: a started serial driver; by default one for `hardware.sensor_driver`.
             The caller keeps ownership of one passed in.
+        bare_table: without the object (commissioning): the drawn scene, and the frames of
+            the simulated sensor driver.
 
     Raises:
         ScenarioError: a field the hardware cannot work with.
@@ -187,14 +190,14 @@ def make_hardware_cell(scenario: Scenario, meshcat: Meshcat | None = None,
     """
     check_hardware_config(scenario, addresses=False)
     builder = DiagramBuilder()
-    plant, scene_graph, models = add_cell_plant(builder, scenario)
+    plant, scene_graph, models = add_cell_plant(builder, scenario, bare_table=bare_table)
     to_close: list[Callable[[], None]] = []
     try:
         if robot is None:
             robot = make_robot(scenario)
             to_close.append(robot.disconnect)
         if sensor_driver is None:
-            sensor_driver = _open_sensor(scenario, robot, to_close)
+            sensor_driver = _open_sensor(scenario, robot, to_close, bare_table)
         _add_hardware_systems(builder, scenario, plant, scene_graph, robot, sensor_driver)
         if meshcat is not None:
             apply_visualization(builder, scenario, plant, scene_graph, meshcat)

@@ -90,3 +90,6 @@ class HardwareConfig:
     still_speed: float = 0.01
     # No new frame from the sensor for this long stops the run, seconds.
     sensor_timeout: float = 2.0
+    # Frames averaged at each view of the bare table while commissioning (`lrnbv hardware
+    # commission`): two thirds of a second at 15 Hz.
+    commission_frames: int = 10

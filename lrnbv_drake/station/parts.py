@@ -12,6 +12,7 @@ import numpy as np
 
 from lrnbv_drake.core.acquisition import SelfFilter
 from lrnbv_drake.core.boxes import AlignedBox
+from lrnbv_drake.core.calibration.commissioning import TableViews, table_view_poses
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator
 from lrnbv_drake.core.estimation.track import EpisodeEstimator
 from lrnbv_drake.core.evaluation.objects import PlacedObject
@@ -44,6 +45,9 @@ from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
 
 #: The viewpoint policies `make_policy` knows.
 PLANNERS = ("lrnbv", "nbv", "heu")
+#: The policy of `lrnbv hardware commission`: the planned views of the bare table
+#: (`core.calibration.commissioning.TableViews`); its cell has no object.
+COMMISSION = "commission"
 
 
 def zone_geometry(scenario: Scenario) -> ZoneGeometry:
@@ -169,8 +173,12 @@ def map_system(scenario: Scenario, period: float | None) -> OccupancyMapSystem:
 
 
 def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
-                placed: PlacedObject) -> ViewpointPolicy:
-    """The viewpoint policy called `planner`."""
+                placed: PlacedObject | None) -> ViewpointPolicy:
+    """The viewpoint policy called `planner` (`PLANNERS`, or `COMMISSION`)."""
+    if planner == COMMISSION:
+        return TableViews(table_view_poses(np.asarray(scenario.extraction.center, float),
+                                           scenario.cell.table_height),
+                          scenario.hardware.commission_frames)
     if planner == "heu":
         # The object's true centre is given to the HEU baseline only, as in the paper.
         return HeuPolicy(placed.mesh.bounds.mean(axis=0), scenario.heu)
@@ -200,10 +208,11 @@ def make_self_filter(scenario: Scenario, motion: MotionPlanner) -> SelfFilter | 
 
 
 def make_stop(planner: str, scenario: Scenario) -> BoxStop | None:
-    """The stop rule `planner.stop.rule` names for LR-NBV and NBV (HEU's sweep is fixed):
+    """The stop rule `planner.stop.rule` names for LR-NBV and NBV (HEU's sweep and the
+    commissioning views are fixed):
     None for the paper's line 24 alone."""
     stop = scenario.planner.stop
-    if stop.rule == "paper" or planner == "heu":
+    if stop.rule == "paper" or planner in ("heu", COMMISSION):
         return None
     return BoxStop(stop)
 

@@ -146,6 +146,9 @@ class SensorConfig:
     # The sensor's pose against the CAD mount that the model assumes, as `lrnbv hardware
     # commission` measures it (docs/hardware.md).
     mount: MountOffset = dc.field(default_factory=MountOffset)
+    # When and how the mount, zone order and table were commissioned; `lrnbv hardware`
+    # refuses to move an arm whose sensor was never commissioned (empty).
+    commissioned: str = ""
     # Hardware only: serial port and baud rate of the sensor board.
     serial_port: str = ""
     baud: int = 460800

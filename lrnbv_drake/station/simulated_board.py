@@ -26,8 +26,9 @@ _log = logging.getLogger(__name__)
 
 
 class SimulatedToFBoard:
-    """Renders the scenario's cell at `joints()` every `sensor.period` and writes the frames
-    into `driver`'s port (a started driver on `loop://`).
+    """Renders the scenario's cell (without its object with `bare_table`) at `joints()` every
+    `sensor.period` and writes the frames into `driver`'s port (a started driver on
+    `loop://`).
 
     Frames count from sequence 1 and carry the board's clock (microseconds since `start()`),
     like the firmware's `micros()`. The noise is seeded by the scenario seed and the sequence,
@@ -35,8 +36,9 @@ class SimulatedToFBoard:
     """
 
     def __init__(self, scenario: Scenario, joints: Callable[[], Sequence[float]],
-                 driver: ToFSerialReader) -> None:
+                 driver: ToFSerialReader, bare_table: bool = False) -> None:
         self._scenario = scenario
+        self._bare_table = bare_table
         self._joints = joints
         self._driver = driver
         self._period = scenario.sensor.period
@@ -69,7 +71,7 @@ class SimulatedToFBoard:
 
     def _run(self) -> None:
         try:
-            cell = make_sim_cell(self._scenario).diagram
+            cell = make_sim_cell(self._scenario, bare_table=self._bare_table).diagram
         except BaseException as e:  # handed to start(), which raises it
             self._error = e
             self._ready.set()

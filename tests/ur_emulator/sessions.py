@@ -26,6 +26,7 @@ from .record import starved_since
 #: shape estimate runs on the real-cell path in test_hardware_session.py).
 SCENARIO = """
 max_poses: 2
+sensor: {commissioned: "the simulated board, on the CAD mount"}
 hardware: {sensor_driver: simulated, max_speed_fraction: 1.0}
 extraction: {estimator: cells}
 """

@@ -23,12 +23,15 @@ from __future__ import annotations
 
 import dataclasses as dc
 import itertools
+from collections.abc import Sequence
+from typing import Protocol
 
 import numpy as np
 import scipy.optimize
 from scipy.spatial.transform import Rotation
 
 from lrnbv_drake.core.estimation.forward import ReadingRule, zone_losses
+from lrnbv_drake.core.planning.policy import Observation, Proposal, Recorded, ViewpointPolicy
 from lrnbv_drake.core.robot.poses import look_at, offset_transform
 from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
@@ -120,6 +123,65 @@ def table_view_poses(center_xy: np.ndarray, table_height: float) -> list[np.ndar
             side = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
             poses.append(look_at(c + height * (up + np.tan(np.deg2rad(tilt)) * side), c))
     return [X @ quarter if i % 2 else X for i, X in enumerate(poses)]
+
+
+#: The key of an acquisition's info that names the commissioning view it belongs to.
+VIEW = "view"
+
+
+class TableViews(ViewpointPolicy):
+    """The acquisition loop's policy while commissioning: each of `poses` in turn, `frames`
+    frames at each. A view the arm cannot reach is passed over (the loop moves to the first
+    reachable candidate, and every view still to take is one); each acquisition's info
+    names its view (`VIEW`)."""
+
+    name = "commission"
+
+    def __init__(self, poses: Sequence[np.ndarray], frames: int) -> None:
+        if frames < 1:
+            raise ValueError(f"frames per view must be >= 1; got {frames}")
+        self._poses = [np.asarray(X, float) for X in poses]
+        self._frames = frames
+        self._next = 0  # the first view not yet taken
+
+    def propose(self, observation: Observation) -> Proposal:
+        if self._next >= len(self._poses):
+            return Proposal(done=True, reason=f"took the {len(self._poses)} commissioning "
+                                              f"views that the arm could reach")
+        views = range(self._next, len(self._poses))
+        return Proposal(candidates=[self._poses[k] for k in views], frames=self._frames,
+                        candidate_info=[{VIEW: k} for k in views])
+
+    def accepted(self, index: int, observation: Observation) -> None:
+        self._next += index + 1
+
+    def restore(self, acquisitions: Sequence[Recorded]) -> None:
+        """Carries on after the last view recorded whole; a view cut short is taken again."""
+        taken = [a.info[VIEW] for a in acquisitions if VIEW in a.info]
+        if taken:
+            last = taken[-1]
+            self._next = last + 1 if taken.count(last) >= self._frames else last
+
+
+class Captured(Recorded, Protocol):
+    """A recorded acquisition with its frame (`core.acquisition.Acquisition`)."""
+
+    frame: ToFFrame
+
+
+def views_of(acquisitions: Sequence[Captured]) -> list[TableView]:
+    """The table views in acquisitions the `TableViews` policy led to: consecutive
+    acquisitions of one view, one `TableView` from the first one's sensor pose."""
+    views: list[TableView] = []
+    previous = None
+    for a in acquisitions:
+        if VIEW not in a.info:
+            continue
+        if a.info[VIEW] != previous:
+            views.append(TableView(np.asarray(a.X_WS, float), ()))
+            previous = a.info[VIEW]
+        views[-1] = dc.replace(views[-1], frames=(*views[-1].frames, a.frame))
+    return views
 
 
 @dc.dataclass(frozen=True)

@@ -44,7 +44,9 @@ class Observation:
 class Proposal:
     """A policy's answer: candidate sensor poses, best first, or done with a reason.
 
-    `info` describes the proposal (it is logged with the acquisition it leads to);
+    `frames` consecutive frames are recorded at the view, each an acquisition (a
+    calibration averages them; a planner takes one). `info` describes the proposal (it is
+    logged with each acquisition it leads to);
     `candidate_info`, when given, holds one dict per candidate, merged into it; `debug` holds
     arrays worth drawing (tree, cache, ROI), not logged.
     """
@@ -52,6 +54,7 @@ class Proposal:
     candidates: list[np.ndarray] = dc.field(default_factory=list)
     done: bool = False
     reason: str = ""
+    frames: int = 1
     info: dict[str, Any] = dc.field(default_factory=dict)
     candidate_info: list[dict[str, Any]] | None = None
     debug: dict[str, Any] = dc.field(default_factory=dict)
