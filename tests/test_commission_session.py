@@ -20,7 +20,8 @@ from ur_emulator.sessions import MOVING, first_pose, journal_lines, servoj_times
 
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.core.sensing.zone_order import model_flips
-from lrnbv_drake.station.scenario import load_scenario
+from lrnbv_drake.experiments.commissioning import commission_cell
+from lrnbv_drake.station.scenario import load_scenario, override
 
 pytest.importorskip("rtde_control")
 pytestmark = pytest.mark.usefixtures("compiled_kernels")
@@ -75,6 +76,13 @@ def test_a_cell_never_commissioned_is_refused_before_anything_moves(tmp_path, ca
         err = capsys.readouterr().err
         assert "nothing moved" in err and "lrnbv hardware commission" in err
         assert not servoj_times(emu.record()) and not (tmp_path / "out").exists()
+        # Commissioning asks first, saying the table must be bare; declined, nothing moves.
+        asked = []
+        result, fit = commission_cell(
+            override(load_scenario(filename=file), {"robot": {"robot_ip": emu.host}}),
+            tmp_path / "declined", confirm=lambda text: asked.append(text) or False)
+        assert result.fault == "declined" and fit is None and "clear the table" in asked[0]
+        assert not servoj_times(emu.record())
 
 
 def test_commissioning_through_ur_rtde_stops_on_a_fault_and_resumes_to_the_fit(tmp_path,

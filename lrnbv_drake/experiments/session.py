@@ -148,9 +148,12 @@ class _HeldInterrupt:
 
 def _confirmation_text(scenario: Scenario, planner: str, out_dir: Path) -> str:
     r, c, hw = scenario.robot, scenario.cell, scenario.hardware
-    return (f"About to move the UR5e at {r.robot_ip} with the {planner} planner, up to "
-            f"{scenario.max_poses} poses, joints at most {np.rad2deg(np.pi * r.speed_fraction):.0f}"
-            f" deg/s (refused above {np.rad2deg(np.pi * hw.max_speed_fraction):.0f}).\n"
+    task = (f"to take the commissioning views of the bare table ({hw.commission_frames} "
+            f"frames each): clear the table" if planner == COMMISSION else
+            f"with the {planner} planner, up to {scenario.max_poses} poses")
+    return (f"About to move the UR5e at {r.robot_ip} {task}, joints at most "
+            f"{np.rad2deg(np.pi * r.speed_fraction):.0f} deg/s (refused above "
+            f"{np.rad2deg(np.pi * hw.max_speed_fraction):.0f}).\n"
             f"The sensor stays in {c.workspace_lower} .. {c.workspace_upper} m (world, "
             f"+{hw.workspace_margin} m along motions) and {hw.min_table_clearance} m above the "
             f"table. Frames: {scenario.sensor.serial_port}. Recording to {out_dir}.\n"
