@@ -82,8 +82,10 @@ def commission_simulated(scenario: Scenario, out: Path) -> Commissioned:
     run = run_loop(build_episode(commissioning_scenario(scenario), COMMISSION))
     if run.fault is not None:
         raise CommissioningError(f"the simulated views stopped: {run.termination}")
-    save_frames(Path(out) / "frames.npz", run.log.acquisitions)
-    return commissioned(commissioning_scenario(scenario), run.log, Path(out))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    save_frames(out / "frames.npz", run.log.acquisitions)
+    return commissioned(commissioning_scenario(scenario), run.log, out)
 
 
 def commission_cell(scenario: Scenario, out_dir: Path, *, confirm: Confirm,
