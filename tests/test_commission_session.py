@@ -107,6 +107,9 @@ def test_commissioning_through_ur_rtde_stops_on_a_fault_and_resumes_to_the_fit(t
         emu.clear_faults()
         assert main(["hardware", "--resume", str(out), "--yes"]) == 0
         assert not emu.state()["program_running"]
+        capsys.readouterr()
+        assert main(["hardware", "--resume", str(out), "--yes"]) == 2  # done: says where
+        assert "is finished" in (err := capsys.readouterr().err) and "commissioning.yaml" in err
     lines = [json.loads(line) for line in (out / "acquisitions.jsonl").read_text().splitlines()]
     views = [line["info"]["view"] for line in lines]
     assert views[:stopped_at] == sorted(views[:stopped_at])  # the first run's, in order

@@ -269,9 +269,11 @@ def resume(out_dir: str | Path, *, confirm: Confirm, meshcat: Meshcat | None = N
         raise SessionError(f"{out_dir} holds no {SESSION_FILE}: nothing to resume")
     session = json.loads(path.read_text())
     if session.get("finished"):
+        what = ("its fit is in commissioning.yaml and commissioning.json, its views in "
+                f"{JOURNAL_FILE}" if session["planner"] == COMMISSION else
+                "its box and poses are in report.json")
         raise SessionError(f"the session in {out_dir} is finished ({session['finished']}): "
-                           f"nothing to resume; its box and poses are in "
-                           f"{out_dir / 'report.json'}. Start a new session in another folder "
+                           f"nothing to resume; {what}. Start a new session in another folder "
                            f"to measure again")
     scenario = load_scenario(data=session["scenario"])
     if robot_ip is not None:
