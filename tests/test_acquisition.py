@@ -13,7 +13,7 @@ from lrnbv_drake.core.acquisition import (
     motion_start,
 )
 from lrnbv_drake.core.estimation.track import EstimateTrack
-from lrnbv_drake.core.planning.policy import Observation, Proposal, ViewpointPolicy
+from lrnbv_drake.core.planning.policy import FRAME_OF_VIEW, Observation, Proposal, ViewpointPolicy
 from lrnbv_drake.core.robot.motion import MotionFailure, MotionPlan
 from lrnbv_drake.core.sensing.sensor import ToFFrame
 
@@ -136,25 +136,36 @@ def test_one_cycle_moves_settles_records_waits_for_the_map_and_plans_again():
 
 
 def test_a_view_of_several_frames_records_each_new_frame_with_the_views_info():
-    """frames=3: after the settle, three frames of distinct sequence in a row, no planning
-    between them; a frame seen twice is recorded once; the map's wait after the third."""
+    """frames=3: after the settle, three new frames in a row, no planning between them; a
+    frame seen twice is recorded once, and one of a board that restarted its count (the
+    same sequence, a new time) is new; the map's wait after the third."""
     policy = Scripted([Proposal(candidates=[_pose(0.5)], frames=3, info={"view": 4})])
+
+    def first_zone_on_the_first_frame(frame, X_WS, q):  # a self filter hitting frame 4 alone
+        hit = np.zeros((8, 8), bool)
+        hit[0, 0] = frame.sequence == 4
+        return frame, hit
     dut = AcquisitionSequencer(policy, ToX(), period=PERIOD, frame_period=FRAME_PERIOD,
-                               settle_frames=1)
+                               settle_frames=1, self_filter=first_zone_on_the_first_frame)
     inputs = Inputs()
     s = dut.step(dut.initial_state(np.zeros(6)), 0.0, inputs)
     s = dut.step(s, 1.0, inputs)  # stopped at 1.0: frames begun from 1.1 on are still
     recorded = []
     for t, (sequence, begun) in zip((1.15, 1.2, 1.25, 1.3, 1.35, 1.4),
                                     ((3, 1.05), (4, 1.1), (4, 1.1), (5, 1.2), (5, 1.2),
-                                     (6, 1.3)), strict=True):
+                                     (5, 1.3)), strict=True):
         inputs.frame_value = _frame(sequence, begun)
         s = dut.step(s, t, inputs)
         recorded.append((len(s.log.acquisitions), s.mode))
     assert recorded == [(0, Mode.SETTLE), (1, Mode.SETTLE), (1, Mode.SETTLE),
                         (2, Mode.SETTLE), (2, Mode.SETTLE), (3, Mode.WAIT_MAP)]
-    assert [a.frame.sequence for a in s.log.acquisitions] == [4, 5, 6]
-    assert all(a.info == {"view": 4, "candidate_rank": 0} for a in s.log.acquisitions)
+    assert [(a.frame.sequence, a.frame.timestamp_us) for a in s.log.acquisitions] == [
+        (4, 1_100_000), (5, 1_200_000), (5, 1_300_000)]
+    # Each frame's own info: the view's, its number, and only its own dropped zones.
+    assert [{k: v for k, v in a.info.items() if k != "robot_zones"}
+            for a in s.log.acquisitions] == [
+        {"view": 4, "candidate_rank": 0, FRAME_OF_VIEW: j} for j in range(3)]
+    assert ["robot_zones" in a.info for a in s.log.acquisitions] == [True, False, False]
     # Each frame's wait counts once: 0.2 s to the first after the stop, then 0.1 s each.
     np.testing.assert_allclose(s.log.settle_seconds, [0.2, 0.1, 0.1])
     assert len(policy.observations) == 1

@@ -78,10 +78,10 @@ def test_a_cell_never_commissioned_is_refused_before_anything_moves(tmp_path, ca
         assert not servoj_times(emu.record()) and not (tmp_path / "out").exists()
         # Commissioning asks first, saying the table must be bare; declined, nothing moves.
         asked = []
-        result, fit = commission_cell(
+        result = commission_cell(
             override(load_scenario(filename=file), {"robot": {"robot_ip": emu.host}}),
             tmp_path / "declined", confirm=lambda text: asked.append(text) or False)
-        assert result.fault == "declined" and fit is None and "clear the table" in asked[0]
+        assert result.fault == "declined" and "clear the table" in asked[0]
         assert not servoj_times(emu.record())
 
 
@@ -110,6 +110,12 @@ def test_commissioning_through_ur_rtde_stops_on_a_fault_and_resumes_to_the_fit(t
         capsys.readouterr()
         assert main(["hardware", "--resume", str(out), "--yes"]) == 2  # done: says where
         assert "is finished" in (err := capsys.readouterr().err) and "commissioning.yaml" in err
+    # A fit that did not get written (it failed, or the process ended) is made on resume.
+    written = (out / "commissioning.yaml").read_text()
+    (out / "commissioning.yaml").unlink()
+    assert main(["hardware", "--resume", str(out), "--yes"]) == 0
+    assert (out / "commissioning.yaml").read_text().split("commissioned")[0] == \
+        written.split("commissioned")[0]
     lines = [json.loads(line) for line in (out / "acquisitions.jsonl").read_text().splitlines()]
     views = [line["info"]["view"] for line in lines]
     assert views[:stopped_at] == sorted(views[:stopped_at])  # the first run's, in order

@@ -20,7 +20,7 @@ from lrnbv_drake.core.calibration.commissioning import (
     table_view_poses,
     views_of,
 )
-from lrnbv_drake.core.planning.policy import Observation
+from lrnbv_drake.core.planning.policy import FRAME_OF_VIEW, Observation
 from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.core.sensing.zone_order import ZONE_ROTATIONS, reorder_frame
 from lrnbv_drake.experiments.commissioning import commission_simulated, commissioning_scenario
@@ -111,7 +111,8 @@ def test_the_simulated_run_writes_a_section_the_model_takes(tmp_path):
     # The board's order (270, cols) is (90, rows) mirrored back: the flips that read it.
     assert (scenario.sensor.flip_x, scenario.sensor.flip_y, scenario.sensor.transpose) == \
         (True, True, True)
-    assert "lrnbv hardware commission" in scenario.sensor.commissioned
+    # Views of a simulated board do not commission a real cell.
+    assert scenario.sensor.commissioned == ""
     assert yaml.safe_load(section.read_text()).keys() == {"sensor", "cell"}
 
 
@@ -133,23 +134,31 @@ def test_the_views_policy_takes_each_view_in_turn_passing_over_those_out_of_reac
     assert dut.propose(seen).done
 
 
-@pytest.mark.parametrize(("recorded", "next_view"), [([0] * 3 + [1] * 3, 2), ([0] * 3 + [1], 1)])
+@pytest.mark.parametrize(("recorded", "next_view"), [
+    ([(0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (1, 2)], 2),
+    ([(0, 0), (0, 1), (0, 2), (1, 0)], 1),
+    ([(1, 0), (1, 1), (1, 0), (1, 1)], 1),  # cut short twice: four frames, none whole
+])
 def test_a_resumed_views_policy_takes_a_view_cut_short_again(recorded, next_view):
     dut = TableViews([_at(x) for x in (0.1, 0.2, 0.3)], frames=3)
-    dut.restore([Acquisition(i, 0.0, np.zeros(6), np.eye(4), ToFFrame.empty(), {VIEW: v})
-                 for i, v in enumerate(recorded)])
+    dut.restore([Acquisition(i, 0.0, np.zeros(6), np.eye(4), ToFFrame.empty(),
+                             {VIEW: v, FRAME_OF_VIEW: j})
+                 for i, (v, j) in enumerate(recorded)])
     proposal = dut.propose(Observation(time=0.0, q=np.zeros(6), X_WS=np.eye(4)))
     assert proposal.candidate_info[0][VIEW] == next_view
 
 
-def test_consecutive_frames_of_a_view_make_one_table_view_from_its_first_pose():
-    frames = [dc.replace(ToFFrame.empty(), sequence=k + 1) for k in range(5)]
-    views = [0, 0, 2, 2, 0]  # a view taken again after a stop is a view of its own
-    acquisitions = [Acquisition(k, 0.0, np.zeros(6), _at(0.1 * k), f, {VIEW: v})
-                    for k, (f, v) in enumerate(zip(frames, views, strict=True))]
-    out = views_of(acquisitions)
-    assert [[f.sequence for f in v.frames] for v in out] == [[1, 2], [3, 4], [5]]
-    assert [v.X_WC[0, 3] for v in out] == pytest.approx([0.0, 0.2, 0.4])
+def test_each_whole_visit_to_a_view_is_one_table_view_from_its_first_pose():
+    """Two frames a view: view 0 whole, view 2 cut short by a stop and taken again, view 3
+    cut short and never retaken: the partial visits are left out."""
+    visits = [(0, 0), (0, 1), (2, 0), (2, 0), (2, 1), (3, 0)]
+    acquisitions = [Acquisition(k, 0.0, np.zeros(6), _at(0.1 * k),
+                                dc.replace(ToFFrame.empty(), sequence=k + 1),
+                                {VIEW: v, FRAME_OF_VIEW: j})
+                    for k, (v, j) in enumerate(visits)]
+    out = views_of(acquisitions, frames=2)
+    assert [[f.sequence for f in v.frames] for v in out] == [[1, 2], [4, 5]]
+    assert [v.X_WC[0, 3] for v in out] == pytest.approx([0.0, 0.3])
 
 
 def test_the_section_brings_a_mis_mounted_episodes_box_back_to_the_nominal_ones(tmp_path):

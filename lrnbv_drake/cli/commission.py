@@ -26,8 +26,9 @@ from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_over
 from lrnbv_drake.core.calibration.commissioning import PARAMETERS, CommissioningError
 from lrnbv_drake.core.robot.safety import RobotConnectionError, RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorError, check_port_exists
-from lrnbv_drake.experiments.commissioning import Commissioned, commission_cell
+from lrnbv_drake.experiments.commissioning import commission_cell, fit_session
 from lrnbv_drake.experiments.episode import make_meshcat
+from lrnbv_drake.experiments.recording import RecordingError
 from lrnbv_drake.experiments.session import SessionError, SessionResult
 from lrnbv_drake.station.scenario import ScenarioError
 from lrnbv_drake.station.scenario_checks import check_ranges
@@ -72,31 +73,39 @@ def run_commission_command(args: argparse.Namespace, confirm: Callable[[str], bo
         meshcat = make_meshcat(live=args.meshcat)
         if meshcat is not None:
             print(f"Meshcat: {meshcat.web_url()}")
-        result, done = commission_cell(scenario, out, confirm=confirm, meshcat=meshcat,
-                                       dry_run=args.dry_run)
+        result = commission_cell(scenario, out, confirm=confirm, meshcat=meshcat,
+                                 dry_run=args.dry_run)
     except (ScenarioError, OutDirError, SensorError, SessionError, RobotConnectionError,
             RobotFault, OSError) as e:
         print(f"lrnbv hardware commission: nothing moved: {e}", file=sys.stderr)
         return EXIT_ERROR
-    except CommissioningError as e:
-        print(f"lrnbv hardware commission: the views are in {args.out}, but {e}",
-              file=sys.stderr)
-        return EXIT_ERROR
     finally:
         if new_dir is not None:  # a start that failed or was declined leaves no empty folder
             remove_if_empty(new_dir)
-    return summarize_commissioning(result, done)
+    return finish_commissioning(result)
 
 
-def summarize_commissioning(result: SessionResult, done: Commissioned | None) -> int:
-    """Prints what a commissioning session measured, or why it stopped; the exit code."""
+def finish_commissioning(result: SessionResult) -> int:
+    """After a commissioning session (new or resumed): why it stopped, or its fit, printed;
+    the exit code."""
     if result.fault == "declined":
         print(result.termination)
         return EXIT_ERROR
-    if result.fault is not None or done is None:
+    if result.fault is not None:
         print(f"{result.n_poses} frames; STOPPED ({result.fault}): {result.termination}",
               file=sys.stderr)
         return EXIT_FAULT
+    return report_fit(result.out_dir)
+
+
+def report_fit(out_dir: Path) -> int:
+    """Fits the commissioning session in `out_dir` and prints its values; the exit code."""
+    try:
+        done = fit_session(out_dir)
+    except (CommissioningError, RecordingError, OSError) as e:
+        print(f"lrnbv hardware commission: the views are in {out_dir}, but the fit failed: {e}"
+              f". `lrnbv hardware --resume {out_dir}` fits them again", file=sys.stderr)
+        return EXIT_ERROR
     fit = done.fit
     print(f"{done.views} views of the bare table ({len(done.skipped)} unreachable), "
           f"{fit.readings} readings, rms {fit.rms:.2f} model sigmas; cycle time "
@@ -106,6 +115,6 @@ def summarize_commissioning(result: SessionResult, done: Commissioned | None) ->
     print(f"  zone order: turned {fit.zone_order[0]} deg, flip '{fit.zone_order[1]}'")
     for note in done.notes:
         print(f"note: {note}")
-    print(f"wrote {result.out_dir / 'commissioning.yaml'} (pass it with --scenario) and "
-          f"{result.out_dir / 'commissioning.json'}")
+    print(f"wrote {out_dir / 'commissioning.yaml'} (pass it with --scenario) and "
+          f"{out_dir / 'commissioning.json'}")
     return EXIT_DONE

@@ -19,15 +19,15 @@ from pathlib import Path
 
 from lrnbv_drake.cli.commission import (
     add_commission_command,
+    finish_commissioning,
+    report_fit,
     run_commission_command,
-    summarize_commissioning,
 )
 from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir, remove_if_empty
 from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
-from lrnbv_drake.core.calibration.commissioning import CommissioningError
 from lrnbv_drake.core.robot.safety import RobotConnectionError, RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorError, check_port_exists
-from lrnbv_drake.experiments.commissioning import fit_session
+from lrnbv_drake.experiments.commissioning import unfitted
 from lrnbv_drake.experiments.episode import PLANNERS, make_meshcat
 from lrnbv_drake.experiments.session import SessionError, SessionResult, resume, run_session
 from lrnbv_drake.station.parts import COMMISSION
@@ -108,6 +108,8 @@ def run_hardware_command(args: argparse.Namespace) -> int:
     if problem is not None:
         print(f"lrnbv hardware: error: {problem}", file=sys.stderr)
         return EXIT_ERROR
+    if args.resume is not None and unfitted(args.resume):  # every view taken, none fitted
+        return report_fit(Path(args.resume))
     new_dir = None
     try:
         if args.resume is None:
@@ -139,11 +141,7 @@ def run_hardware_command(args: argparse.Namespace) -> int:
         if new_dir is not None:  # a start that failed or was declined leaves no empty folder
             remove_if_empty(new_dir)
     if result.planner == COMMISSION:  # a commissioning session carried on
-        try:
-            return summarize_commissioning(result, fit_session(result))
-        except CommissioningError as e:
-            print(f"lrnbv hardware: the views are in {result.out_dir}, but {e}", file=sys.stderr)
-            return EXIT_ERROR
+        return finish_commissioning(result)
     return _summarize(result)
 
 

@@ -7,7 +7,8 @@ it, let the map take it in, plan again.
     MOVE      play the trajectory (`command`) until it ends
     SETTLE    wait for a frame whose integration began `settle_frames` frame periods after
               the stop, then record it as an `Acquisition`; a proposal of `frames` > 1
-              records that many consecutive frames at the view (each a new frame)
+              records that many consecutive new frames at the view, numbered in their info
+              (`FRAME_OF_VIEW`)
     WAIT_MAP  wait 1.5 ticks: the map inserts the frame on the next tick, the planner reads
               the updated map on the one after; then PLAN
     DONE      the policy is done, the stop rule says the reported box is known (`stop`, reading
@@ -31,7 +32,12 @@ from typing import Any, Protocol
 import numpy as np
 
 from lrnbv_drake.core.estimation.track import EstimateTrack
-from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation, ViewpointPolicy
+from lrnbv_drake.core.planning.policy import (
+    CANDIDATE_RANK,
+    FRAME_OF_VIEW,
+    Observation,
+    ViewpointPolicy,
+)
 from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.core.robot.motion import MotionPlanning, Trajectory
 from lrnbv_drake.core.robot.self_filter import dropped_zones_info
@@ -74,7 +80,7 @@ class EpisodeLog:
     policy_seconds: list[float] = dc.field(default_factory=list)
     motion_seconds: list[float] = dc.field(default_factory=list)
     # Cell time, seconds: each accepted trajectory's duration, and each acquisition's wait
-    # from the arm's stop (or the start) to the frame used.
+    # from the arm's stop (or the start, or its view's frame before) to the frame used.
     travel_seconds: list[float] = dc.field(default_factory=list)
     settle_seconds: list[float] = dc.field(default_factory=list)
     termination: str = ""
@@ -164,10 +170,12 @@ class AcquisitionState:
     t_ready: float = 0.0
     pending_info: dict[str, Any] = dc.field(default_factory=dict)
     failed_in_a_row: int = 0
-    # Frames still to record at this view, the sequence of its last one recorded (0: none), and
-    # since when the loop has waited for the next (the stop, or the view's last frame).
+    # Frames still to record at this view, of how many; the (sequence, board time) of its last
+    # frame recorded (a new frame differs in either, so a board that restarts its count is
+    # still read); since when the loop has waited for the next (the stop, or the last frame).
     frames_left: int = 1
-    last_sequence: int = 0
+    view_frames: int = 1
+    last_frame: tuple[int, int] = (0, 0)
     t_waiting: float = 0.0
 
 
@@ -236,7 +244,7 @@ class AcquisitionSequencer:
             s.mode, s.t_stop, s.t_waiting = Mode.SETTLE, t, t
         elif s.mode is Mode.SETTLE:
             frame = inputs.frame()
-            if (frame.sequence > 0 and frame.sequence != s.last_sequence
+            if (frame.sequence > 0 and (frame.sequence, frame.timestamp_us) != s.last_frame
                     and frame.timestamp_us >= (s.t_stop + self._settle) * 1e6 - 1):
                 self._record(s, t, frame, inputs)
         elif s.mode is Mode.WAIT_MAP and t >= s.t_ready:
@@ -248,17 +256,19 @@ class AcquisitionSequencer:
     def _record(self, s: AcquisitionState, t: float, frame: ToFFrame,
                 inputs: AcquisitionInputs) -> None:
         q, X_WS = np.asarray(inputs.q(), float).copy(), inputs.X_WS()
+        info = dict(s.pending_info)
+        if s.view_frames > 1:
+            info[FRAME_OF_VIEW] = s.view_frames - s.frames_left
+        s.last_frame = (frame.sequence, frame.timestamp_us)
         if self._self_filter is not None:
             filtered, hit = self._self_filter(frame, X_WS, q)
             if hit.any():
-                s.pending_info = {**s.pending_info,
-                                  "robot_zones": dropped_zones_info(frame, hit)}
+                info["robot_zones"] = dropped_zones_info(frame, hit)
             frame = filtered
         s.log.acquisitions.append(Acquisition(
-            index=len(s.log.acquisitions), time=t, q=q, X_WS=X_WS, frame=frame,
-            info=s.pending_info))
+            index=len(s.log.acquisitions), time=t, q=q, X_WS=X_WS, frame=frame, info=info))
         s.log.settle_seconds.append(t - s.t_waiting)
-        s.last_sequence, s.t_waiting = frame.sequence, t
+        s.t_waiting = t
         s.frames_left -= 1
         if s.frames_left > 0:  # the view's next frame, each with the view's info
             return
@@ -305,7 +315,7 @@ class AcquisitionSequencer:
                 s.log.travel_seconds.append(plan.trajectory.end_time() - t)
                 per_candidate = proposal.candidate_info[i] if proposal.candidate_info else {}
                 s.pending_info = {**proposal.info, **per_candidate, CANDIDATE_RANK: i}
-                s.frames_left, s.last_sequence = proposal.frames, 0
+                s.frames_left = s.view_frames = proposal.frames
                 s.log.plan = {**proposal.debug, "step": len(s.log.policy_seconds),
                               "X_WS": np.asarray(X_WS)}
                 break

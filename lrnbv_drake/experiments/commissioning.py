@@ -34,15 +34,17 @@ from lrnbv_drake.core.calibration.commissioning import (
     table_view_poses,
     views_of,
 )
+from lrnbv_drake.core.planning.policy import FRAME_OF_VIEW
 from lrnbv_drake.core.sensing.zone_order import model_flips
 from lrnbv_drake.experiments.episode import build_episode, run_loop
-from lrnbv_drake.experiments.recording import save_frames, write_atomically
+from lrnbv_drake.experiments.recording import AcquisitionJournal, save_frames, write_atomically
 from lrnbv_drake.experiments.session import (
     SESSION_FILE,
     Confirm,
     SessionResult,
     run_session,
 )
+from lrnbv_drake.experiments.session_monitor import JOURNAL_FILE
 from lrnbv_drake.station.parts import COMMISSION, sensor_behaviour, sensor_params
 from lrnbv_drake.station.scenario import MountOffset, Scenario, load_scenario
 
@@ -85,39 +87,58 @@ def commission_simulated(scenario: Scenario, out: Path) -> Commissioned:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     save_frames(out / "frames.npz", run.log.acquisitions)
-    return commissioned(commissioning_scenario(scenario), run.log, out)
+    return commissioned(commissioning_scenario(scenario), run.log, out, real=False)
 
 
 def commission_cell(scenario: Scenario, out_dir: Path, *, confirm: Confirm,
-                    meshcat: Meshcat | None = None, dry_run: bool = False
-                    ) -> tuple[SessionResult, Commissioned | None]:
+                    meshcat: Meshcat | None = None, dry_run: bool = False) -> SessionResult:
     """Takes the views on the real cell (or its dry run) as a session in `out_dir`
-    (`experiments.session.run_session`), then fits them; the fit is None when the session
-    did not take every view (a fault, or the operator declined)."""
-    result = run_session(commissioning_scenario(scenario), COMMISSION, out_dir,
-                         confirm=confirm, meshcat=meshcat, dry_run=dry_run)
-    return result, fit_session(result)
+    (`experiments.session.run_session`); `fit_session` then fits them."""
+    return run_session(commissioning_scenario(scenario), COMMISSION, out_dir,
+                       confirm=confirm, meshcat=meshcat, dry_run=dry_run)
 
 
-def fit_session(result: SessionResult) -> Commissioned | None:
-    """The fit of a commissioning session that took every view (a new one, or one carried on
-    by `experiments.session.resume`: its views before and after the stop); None after a
-    fault or a declined start."""
-    if result.fault is not None:
-        return None
-    session = json.loads((result.out_dir / SESSION_FILE).read_text())
-    return commissioned(load_scenario(data=session["scenario"]), result.log, result.out_dir)
+def fit_session(out_dir: Path) -> Commissioned:
+    """Fits the views of the commissioning session in `out_dir` (`acquisitions.jsonl`: every
+    view whole, before and after any stop) and writes its section. Only a session on the
+    real arm marks the section commissioned (`sensor.commissioned`): a dry run's is of the
+    simulated board.
+
+    Raises:
+        CommissioningError: the views cannot tell a value apart, or the folder holds no
+            commissioning session.
+    """
+    out_dir = Path(out_dir)
+    session = json.loads((out_dir / SESSION_FILE).read_text())
+    if session["planner"] != COMMISSION:
+        raise CommissioningError(f"{out_dir} holds a {session['planner']} session, not a "
+                                 f"commissioning one")
+    log = EpisodeLog(acquisitions=AcquisitionJournal(out_dir / JOURNAL_FILE).load())
+    return commissioned(load_scenario(data=session["scenario"]), log, out_dir,
+                        real=not session["dry_run"])
 
 
-def commissioned(scenario: Scenario, log: EpisodeLog, out: Path) -> Commissioned:
+def unfitted(out_dir: Path) -> bool:
+    """Whether `out_dir` holds a finished commissioning session whose fit was not written
+    (it failed, or the process ended first): `fit_session` fits it again."""
+    path = Path(out_dir) / SESSION_FILE
+    if not path.exists() or (Path(out_dir) / "commissioning.yaml").exists():
+        return False
+    session = json.loads(path.read_text())
+    return session["planner"] == COMMISSION and bool(session.get("finished"))
+
+
+def commissioned(scenario: Scenario, log: EpisodeLog, out: Path, real: bool) -> Commissioned:
     """Fits the views in `log` (taken under `commissioning_scenario`), writes
-    `commissioning.yaml` and `commissioning.json` into `out`, and returns them.
+    `commissioning.yaml` and `commissioning.json` into `out`, and returns them; with `real`
+    (the views of a real sensor) the section says the cell was commissioned.
 
     Raises:
         CommissioningError: the views cannot tell a value apart (naming it).
     """
     center = np.asarray(scenario.extraction.center, float)
-    views = views_of(log.acquisitions)
+    frames = scenario.hardware.commission_frames
+    views = views_of(log.acquisitions, frames)
     fit = fit_commissioning(views, sensor_params(scenario), sensor_behaviour(scenario),
                             np.asarray(scenario.cell.table_extent, float), center,
                             scenario.cell.table_height)
@@ -126,10 +147,11 @@ def commissioned(scenario: Scenario, log: EpisodeLog, out: Path) -> Commissioned
     section = {
         "sensor": {"mount": {"xyz_mm": _rounded(fit.mount_xyz_mm),
                              "rpy_deg": _rounded(fit.mount_rpy_deg)},
-                   "flip_x": flip_x, "flip_y": flip_y, "transpose": transpose,
-                   "commissioned": f"{stamp}, lrnbv hardware commission into {out}"},
+                   "flip_x": flip_x, "flip_y": flip_y, "transpose": transpose},
         "cell": {"table_height": round(fit.table_height_m, 5)},
     }
+    if real:
+        section["sensor"]["commissioned"] = f"{stamp}, lrnbv hardware commission into {out}"
     notes = []
     slope, slope_sigma = fit.values[7:9], fit.sigma[7:9]
     if np.any((np.abs(slope) > LEVEL_SLOPE_DEG) & (np.abs(slope) > 3 * slope_sigma)):
@@ -140,7 +162,8 @@ def commissioned(scenario: Scenario, log: EpisodeLog, out: Path) -> Commissioned
                      f"flipped '{fit.zone_order[1]}' against the model: the section sets "
                      f"flip_x, flip_y and transpose to read it")
     planned = table_view_poses(center, scenario.cell.table_height)
-    taken = {a.info[VIEW] for a in log.acquisitions if VIEW in a.info}
+    taken = {a.info[VIEW] for a in log.acquisitions
+             if VIEW in a.info and a.info.get(FRAME_OF_VIEW, 0) == frames - 1}
     skipped = tuple(f"view {k}: {_why_not(planned[k], log)}" for k in range(len(planned))
                     if k not in taken)
     result = Commissioned(fit, section, len(views), skipped, cycle_time(log).total,

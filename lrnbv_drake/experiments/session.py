@@ -209,7 +209,7 @@ def run_session(scenario: Scenario, planner: str, out_dir: str | Path, *, confir
 
     Args:
         scenario: the cell; `robot.robot_ip` and `sensor.serial_port` name the hardware.
-        planner: "lrnbv", "nbv" or "heu".
+        planner: "lrnbv", "nbv" or "heu", or `COMMISSION` (the views of the bare table).
         out_dir: the output folder.
         confirm: asked with a description of what is about to happen before anything can
             move; the run goes ahead only if it returns True. Not asked in a dry run.

@@ -80,6 +80,9 @@ def check_hardware_config(scenario: Scenario, *, addresses: bool = True) -> None
                  "watchdog_hold"):
         if not getattr(hw, name) > 0:
             raise ScenarioError(f"field 'hardware.{name}': must be > 0, got {getattr(hw, name)}")
+    if hw.commission_frames < 1:
+        raise ScenarioError(f"field 'hardware.commission_frames': must be >= 1, got "
+                            f"{hw.commission_frames}")
     for name in ("command_jump_tolerance", "workspace_margin", "min_table_clearance"):
         if not getattr(hw, name) >= 0:
             raise ScenarioError(f"field 'hardware.{name}': must be >= 0, got "

@@ -47,7 +47,7 @@ from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
 PLANNERS = ("lrnbv", "nbv", "heu")
 #: The policy of `lrnbv hardware commission`: the planned views of the bare table
 #: (`core.calibration.commissioning.TableViews`); its cell has no object.
-COMMISSION = "commission"
+COMMISSION = TableViews.name
 
 
 def zone_geometry(scenario: Scenario) -> ZoneGeometry:

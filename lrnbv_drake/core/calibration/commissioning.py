@@ -31,7 +31,13 @@ import scipy.optimize
 from scipy.spatial.transform import Rotation
 
 from lrnbv_drake.core.estimation.forward import ReadingRule, zone_losses
-from lrnbv_drake.core.planning.policy import Observation, Proposal, Recorded, ViewpointPolicy
+from lrnbv_drake.core.planning.policy import (
+    FRAME_OF_VIEW,
+    Observation,
+    Proposal,
+    Recorded,
+    ViewpointPolicy,
+)
 from lrnbv_drake.core.robot.poses import look_at, offset_transform
 from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
@@ -157,10 +163,11 @@ class TableViews(ViewpointPolicy):
 
     def restore(self, acquisitions: Sequence[Recorded]) -> None:
         """Carries on after the last view recorded whole; a view cut short is taken again."""
-        taken = [a.info[VIEW] for a in acquisitions if VIEW in a.info]
+        taken = [a for a in acquisitions if VIEW in a.info]
         if taken:
-            last = taken[-1]
-            self._next = last + 1 if taken.count(last) >= self._frames else last
+            last = taken[-1].info
+            whole = last.get(FRAME_OF_VIEW, 0) == self._frames - 1
+            self._next = last[VIEW] + 1 if whole else last[VIEW]
 
 
 class Captured(Recorded, Protocol):
@@ -169,19 +176,21 @@ class Captured(Recorded, Protocol):
     frame: ToFFrame
 
 
-def views_of(acquisitions: Sequence[Captured]) -> list[TableView]:
-    """The table views in acquisitions the `TableViews` policy led to: consecutive
-    acquisitions of one view, one `TableView` from the first one's sensor pose."""
-    views: list[TableView] = []
-    previous = None
+def views_of(acquisitions: Sequence[Captured], frames: int) -> list[TableView]:
+    """The table views in acquisitions the `TableViews` policy led to: each visit to a view
+    that recorded its `frames` frames (numbered 0 up, `FRAME_OF_VIEW`), one `TableView` from
+    its first frame's sensor pose. A visit a stop cut short is left out: its frames were
+    taken from a pose the retake does not share."""
+    visits: list[list[Captured]] = []
     for a in acquisitions:
         if VIEW not in a.info:
             continue
-        if a.info[VIEW] != previous:
-            views.append(TableView(np.asarray(a.X_WS, float), ()))
-            previous = a.info[VIEW]
-        views[-1] = dc.replace(views[-1], frames=(*views[-1].frames, a.frame))
-    return views
+        if (not visits or a.info.get(FRAME_OF_VIEW, 0) == 0
+                or a.info[VIEW] != visits[-1][-1].info[VIEW]):
+            visits.append([])
+        visits[-1].append(a)
+    return [TableView(np.asarray(v[0].X_WS, float), tuple(a.frame for a in v))
+            for v in visits if len(v) == frames]
 
 
 @dc.dataclass(frozen=True)

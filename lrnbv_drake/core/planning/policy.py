@@ -17,6 +17,9 @@ import numpy as np
 #: The key under which the loop records, in an acquisition's info, which candidate of the
 #: proposal it moved to (absent for a capture no proposal led to, such as the initial one).
 CANDIDATE_RANK = "candidate_rank"
+#: The key of an acquisition's info that numbers it among its view's frames (0 first; only
+#: where the proposal asked for more than one, `Proposal.frames`).
+FRAME_OF_VIEW = "frame_of_view"
 
 
 @dc.dataclass
