@@ -126,4 +126,7 @@ def test_commissioning_through_ur_rtde_stops_on_a_fault_and_resumes_to_the_fit(t
     np.testing.assert_allclose(section.sensor.mount.rpy_deg, MOUNT_RPY_DEG, atol=0.2)
     np.testing.assert_allclose(section.sensor.mount.xyz_mm, MOUNT_XYZ_MM, atol=1.5)
     assert abs(section.cell.table_height) < 0.0015  # the table where the model has it
-    assert section.sensor.commissioned
+    assert section.sensor.commissioned  # the views of a real arm's sensor
+    # The session's cycle time: at least every frame's period, at 15 Hz.
+    assert json.loads((out / "commissioning.json").read_text())["cycle_time_s"] > \
+        len(lines) / 15

@@ -103,6 +103,7 @@ def test_the_simulated_run_writes_a_section_the_model_takes(tmp_path):
     assert result.views >= 12 and len(result.skipped) == 15 - result.views
     frames = np.load(tmp_path / "frames.npz")["q"]
     assert len(frames) == result.views * HardwareConfig().commission_frames
+    assert result.cycle_time_s > len(frames) * load_scenario().sensor.period  # the frames
     section = tmp_path / "commissioning.yaml"
     scenario = load_scenario(filename=section)
     np.testing.assert_allclose(scenario.sensor.mount.rpy_deg, MOUNT_RPY_DEG, atol=0.2)

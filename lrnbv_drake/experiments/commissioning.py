@@ -87,7 +87,8 @@ def commission_simulated(scenario: Scenario, out: Path) -> Commissioned:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     save_frames(out / "frames.npz", run.log.acquisitions)
-    return commissioned(commissioning_scenario(scenario), run.log, out, real=False)
+    return commissioned(commissioning_scenario(scenario), run.log, out, real=False,
+                        cycle_seconds=cycle_time(run.log).total)
 
 
 def commission_cell(scenario: Scenario, out_dir: Path, *, confirm: Confirm,
@@ -114,8 +115,11 @@ def fit_session(out_dir: Path) -> Commissioned:
         raise CommissioningError(f"{out_dir} holds a {session['planner']} session, not a "
                                  f"commissioning one")
     log = EpisodeLog(acquisitions=AcquisitionJournal(out_dir / JOURNAL_FILE).load())
+    report = out_dir / "report.json"  # the session's cycle time (its last run's, if resumed)
+    cycle = (json.loads(report.read_text())["cycle_time"]["total_s"] if report.exists()
+             else float("nan"))
     return commissioned(load_scenario(data=session["scenario"]), log, out_dir,
-                        real=not session["dry_run"])
+                        real=not session["dry_run"], cycle_seconds=cycle)
 
 
 def unfitted(out_dir: Path) -> bool:
@@ -128,10 +132,11 @@ def unfitted(out_dir: Path) -> bool:
     return session["planner"] == COMMISSION and bool(session.get("finished"))
 
 
-def commissioned(scenario: Scenario, log: EpisodeLog, out: Path, real: bool) -> Commissioned:
-    """Fits the views in `log` (taken under `commissioning_scenario`), writes
-    `commissioning.yaml` and `commissioning.json` into `out`, and returns them; with `real`
-    (the views of a real sensor) the section says the cell was commissioned.
+def commissioned(scenario: Scenario, log: EpisodeLog, out: Path, real: bool,
+                 cycle_seconds: float) -> Commissioned:
+    """Fits the views in `log` (taken under `commissioning_scenario`, in `cycle_seconds`),
+    writes `commissioning.yaml` and `commissioning.json` into `out`, and returns them; with
+    `real` (the views of a real sensor) the section says the cell was commissioned.
 
     Raises:
         CommissioningError: the views cannot tell a value apart (naming it).
@@ -166,8 +171,7 @@ def commissioned(scenario: Scenario, log: EpisodeLog, out: Path, real: bool) -> 
              if VIEW in a.info and a.info.get(FRAME_OF_VIEW, 0) == frames - 1}
     skipped = tuple(f"view {k}: {_why_not(planned[k], log)}" for k in range(len(planned))
                     if k not in taken)
-    result = Commissioned(fit, section, len(views), skipped, cycle_time(log).total,
-                          tuple(notes))
+    result = Commissioned(fit, section, len(views), skipped, cycle_seconds, tuple(notes))
     write_commissioning(out, result)
     return result
 
