@@ -22,7 +22,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir, remove_if_empty
-from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
+from lrnbv_drake.cli.scenario_args import (
+    add_cell_address_arguments,
+    add_scenario_arguments,
+    load_cell_scenario,
+    missing_cell_address,
+)
 from lrnbv_drake.core.calibration.commissioning import PARAMETERS, CommissioningError
 from lrnbv_drake.core.robot.safety import RobotConnectionError, RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorError, check_port_exists
@@ -42,8 +47,7 @@ def add_commission_command(subparsers: argparse._SubParsersAction) -> None:
                                                  "the table from views of the bare table",
                               description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--robot-ip", help="the UR controller's address (robot.robot_ip)")
-    p.add_argument("--sensor-port", help="the sensor board's serial port (sensor.serial_port)")
+    add_cell_address_arguments(p)
     p.add_argument("--out", required=True, help="output folder (new, or empty)")
     p.add_argument("--dry-run", action="store_true",
                    help="commission the simulated cell (its `device:` off the model); nothing "
@@ -57,14 +61,13 @@ def add_commission_command(subparsers: argparse._SubParsersAction) -> None:
 def run_commission_command(args: argparse.Namespace, confirm: Callable[[str], bool]) -> int:
     """Runs `lrnbv hardware commission`; returns the exit code. `confirm` asks the operator
     before the arm moves, as for `lrnbv hardware`."""
-    if not args.dry_run and args.robot_ip is None and args.scenario is None:
-        print("lrnbv hardware commission: error: --robot-ip and --sensor-port required (or a "
-              "--scenario that sets them, or --dry-run)", file=sys.stderr)
+    problem = missing_cell_address(args)
+    if problem is not None:
+        print(f"lrnbv hardware commission: error: {problem}", file=sys.stderr)
         return EXIT_ERROR
     new_dir = None
     try:
-        scenario = load_with_overrides(args, {"robot": {"robot_ip": args.robot_ip},
-                                              "sensor": {"serial_port": args.sensor_port}})
+        scenario = load_cell_scenario(args)
         check_ranges(scenario)
         if not args.dry_run and scenario.hardware.sensor_driver == "serial":
             check_port_exists(scenario.sensor.serial_port)  # before reaching the robot

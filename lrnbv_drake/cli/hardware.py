@@ -24,14 +24,19 @@ from lrnbv_drake.cli.commission import (
     run_commission_command,
 )
 from lrnbv_drake.cli.out_dir import OutDirError, prepare_out_dir, remove_if_empty
-from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
+from lrnbv_drake.cli.scenario_args import (
+    add_cell_address_arguments,
+    add_scenario_arguments,
+    load_cell_scenario,
+    missing_cell_address,
+)
 from lrnbv_drake.core.robot.safety import RobotConnectionError, RobotFault
 from lrnbv_drake.drivers.tof_serial import SensorError, check_port_exists
 from lrnbv_drake.experiments.commissioning import unfitted
 from lrnbv_drake.experiments.episode import PLANNERS, make_meshcat
 from lrnbv_drake.experiments.session import SessionError, SessionResult, resume, run_session
 from lrnbv_drake.station.parts import COMMISSION
-from lrnbv_drake.station.scenario import Scenario, ScenarioError
+from lrnbv_drake.station.scenario import ScenarioError
 from lrnbv_drake.station.scenario_checks import check_placement
 
 #: Exit codes: the planner ended the episode; a fault stopped it; it could not start.
@@ -53,8 +58,7 @@ def add_hardware_commands(subparsers: argparse._SubParsersAction) -> None:
                                                "real UR5e and sensor",
                               description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--robot-ip", help="the UR controller's address (robot.robot_ip)")
-    p.add_argument("--sensor-port", help="the sensor board's serial port (sensor.serial_port)")
+    add_cell_address_arguments(p)
     p.add_argument("--out", help="output folder of a new session (new, or empty)")
     add_scenario_arguments(p)
     p.add_argument("--planner", choices=PLANNERS, default="lrnbv",
@@ -69,11 +73,6 @@ def add_hardware_commands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--resume", metavar="DIR", help="continue the session recorded in DIR")
     add_commission_command(p.add_subparsers(dest="hardware_command", required=False,
                                             metavar="{commission}"))
-
-
-def _scenario(args: argparse.Namespace) -> Scenario:
-    return load_with_overrides(args, {"robot": {"robot_ip": args.robot_ip},
-                                      "sensor": {"serial_port": args.sensor_port}})
 
 
 def _check_args(args: argparse.Namespace) -> str | None:
@@ -91,12 +90,7 @@ def _check_args(args: argparse.Namespace) -> str | None:
         return None
     if args.out is None:
         return "--out DIR is required (or --resume DIR)"
-    if not args.dry_run:
-        missing = [f for f in ("robot_ip", "sensor_port") if getattr(args, f) is None]
-        if missing and args.scenario is None:
-            return (f"{' and '.join('--' + f.replace('_', '-') for f in missing)} required "
-                    f"(or a --scenario that sets them, or --dry-run)")
-    return None
+    return missing_cell_address(args)
 
 
 def run_hardware_command(args: argparse.Namespace) -> int:
@@ -113,7 +107,7 @@ def run_hardware_command(args: argparse.Namespace) -> int:
     new_dir = None
     try:
         if args.resume is None:
-            scenario = _scenario(args)
+            scenario = load_cell_scenario(args)
             check_placement(scenario)
             if not args.dry_run and scenario.hardware.sensor_driver == "serial":
                 check_port_exists(scenario.sensor.serial_port)  # before reaching the robot

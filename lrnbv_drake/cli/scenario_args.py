@@ -35,6 +35,29 @@ def add_containers_argument(parser: argparse.ArgumentParser) -> None:
                              "models/containers/shipping_boxes.yaml)")
 
 
+def add_cell_address_arguments(parser: argparse.ArgumentParser) -> None:
+    """--robot-ip and --sensor-port: where the real cell's robot and sensor are."""
+    parser.add_argument("--robot-ip", help="the UR controller's address (robot.robot_ip)")
+    parser.add_argument("--sensor-port",
+                        help="the sensor board's serial port (sensor.serial_port)")
+
+
+def missing_cell_address(args: argparse.Namespace) -> str | None:
+    """What a real (not --dry-run) run lacks of --robot-ip and --sensor-port, unless a
+    --scenario may set them; None if nothing."""
+    missing = [f for f in ("robot_ip", "sensor_port") if getattr(args, f) is None]
+    if args.dry_run or not missing or args.scenario is not None:
+        return None
+    return (f"{' and '.join('--' + f.replace('_', '-') for f in missing)} required "
+            f"(or a --scenario that sets them, or --dry-run)")
+
+
+def load_cell_scenario(args: argparse.Namespace) -> Scenario:
+    """The scenario (`load_with_overrides`) with --robot-ip and --sensor-port over it."""
+    return load_with_overrides(args, {"robot": {"robot_ip": args.robot_ip},
+                                      "sensor": {"serial_port": args.sensor_port}})
+
+
 def load_with_overrides(args: argparse.Namespace, overrides: dict[str, Any]) -> Scenario:
     """The scenario from --scenario and --scenario-text, then the flags' `overrides` (nested
     like the YAML; fields left None are not set)."""

@@ -81,13 +81,14 @@ def commission_simulated(scenario: Scenario, out: Path) -> Commissioned:
     """Takes the commissioning views on the simulated cell (the device as `device:` sets it,
     the table bare) and fits them; writes `frames.npz` (every frame with its pose and joints),
     `commissioning.yaml` (the section) and `commissioning.json` (values, errors, orders)."""
-    run = run_loop(build_episode(commissioning_scenario(scenario), COMMISSION))
+    scenario = commissioning_scenario(scenario)
+    run = run_loop(build_episode(scenario, COMMISSION))
     if run.fault is not None:
         raise CommissioningError(f"the simulated views stopped: {run.termination}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     save_frames(out / "frames.npz", run.log.acquisitions)
-    return commissioned(commissioning_scenario(scenario), run.log, out, real=False,
+    return commissioned(scenario, run.log, out, real=False,
                         cycle_seconds=cycle_time(run.log).total)
 
 
