@@ -100,7 +100,8 @@ def test_a_zone_bundle_culls_only_boxes_none_of_its_sub_rays_meets():
         cast_all = np.zeros_like(rays.planes)
         parts = np.c_[rng.uniform([0.35, -0.15, -np.pi, 0.01, 0.01, 0.01],
                                   [0.65, 0.15, np.pi, 0.2, 0.2, 0.2], (3, 6)),
-                      rng.integers(0, 2, (3, 3))]
+                      rng.integers(0, 2, (3, 3)), np.zeros(3)]
+        parts[:, 9] = rng.uniform(0.0, 0.5, 3) * parts[:, 5]  # some parts above the table
         solid = np.array([True, True, False])
         rows = np.arange(len(rays))
         for x in parts:
@@ -128,8 +129,8 @@ def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads()
     problem = Problem(rays, 0.0, np.array(scenario.cell.table_extent),
                       ReadingRule.of(model, sensor_behaviour(scenario)), 2.0, 5.0, 0.0005)
     body = box_shape(truth, 0.0).parts[0]
-    body[6:] = (1, 1, 0)  # an upright cylinder, and a box part beside it
-    shape = Shape(np.array([body, [*truth.center[:2] + 0.05, 0.3, 0.03, 0.02, 0.05, 0, 0, 0]]),
+    body[6:9] = (1, 1, 0)  # an upright cylinder, and a box part beside it
+    shape = Shape(np.array([body, [*truth.center[:2] + 0.05, 0.3, 0.03, 0.02, 0.05, 0, 0, 0, 0]]),
                   (True, True), (True, False))
     before = numba.get_num_threads()
     try:
@@ -173,7 +174,7 @@ def test_the_forward_model_predicts_what_drakes_renderer_and_the_device_read():
     rays = ZoneRays.concatenate([zone_rays(f, X, model) for f, X in frames], 64)
     problem = Problem(rays, 0.0, np.array(scenario.cell.table_extent),
                       ReadingRule.of(model, sensor_behaviour(scenario)), 2.0, 5.0, 0.0005)
-    shape = Shape(np.array([[*truth.center[:2], truth.yaw, *truth.dims, 0, 0, 0]]), (False,),
+    shape = Shape(np.array([[*truth.center[:2], truth.yaw, *truth.dims, 0, 0, 0, 0]]), (False,),
                   (True,))
     predicted = problem.evaluate(shape).predicted
     errors = np.abs(predicted - rays.measured)

@@ -1,5 +1,6 @@
-"""The fitted shape: solid parts minus holes, each a box standing on the table with a
-quadric rounding (`forward` module doc), and the moves of one coordinate the search makes."""
+"""The fitted shape: solid parts minus holes, each a box between two heights above the table
+with a quadric rounding (`forward` module doc), and the moves of one coordinate the search
+makes."""
 
 from __future__ import annotations
 
@@ -17,47 +18,71 @@ ROUNDINGS = ((1.0, 1.0, 0.0), (1.0, 1.0, 1.0), (0.0, 1.0, 1.0), (1.0, 0.0, 1.0))
 MIN_SIDE = 0.002
 #: A hole's height: it runs from the table up through every solid.
 HOLE_HEIGHT = 2.0
-#: Coordinates of a part: its four sides (moved outward), its top, its yaw, its rounding.
-SIDES, TOP, YAW = (0, 1, 2, 3), 4, 5
+#: Coordinates of a part: its four sides (moved outward), its top, its yaw, its rounding's
+#: three axes, its bottom (raised).
+SIDES, TOP, YAW, ROUNDING, BOTTOM = (0, 1, 2, 3), 4, 5, (6, 7, 8), 9
+
 
 @dc.dataclass(frozen=True)
 class Shape:
-    """Solid parts minus holes (`forward.PART_SIZE` numbers each) and which parts have their
-    rounding free (the others are boxes)."""
+    """Solid parts minus holes (`forward.PART_SIZE` numbers each), which parts have their
+    rounding free (the others are boxes) and which solids are lifted, their bottom free (the
+    others stand on the table): a mug's handle, a toy's arm."""
 
     parts: np.ndarray
     rounded: tuple[bool, ...]
     solid: tuple[bool, ...]
+    lifted: tuple[bool, ...] = ()
+
+    def __post_init__(self) -> None:
+        if len(self.lifted) != len(self.solid):
+            object.__setattr__(self, "lifted", (False,) * len(self.solid))
 
     @property
     def n_params(self) -> int:
-        return sum((6 if s else 5) + (3 if s else 2) * r
-                       for r, s in zip(self.rounded, self.solid, strict=True))
+        return sum(len(self.coordinates(k)) for k in range(len(self.solid)))
 
     def coordinates(self, k: int) -> tuple[int, ...]:
         """The coordinates part k is searched in (a hole has no top and no vertical
-        rounding)."""
+        rounding: it runs through every solid)."""
         if self.solid[k]:
-            return tuple(range(9 if self.rounded[k] else 6))
-        return (0, 1, 2, 3, YAW, 6, 7) if self.rounded[k] else (0, 1, 2, 3, YAW)
+            return (*SIDES, TOP, YAW, *(ROUNDING if self.rounded[k] else ()),
+                    *((BOTTOM,) if self.lifted[k] else ()))
+        return (*SIDES, YAW, *(ROUNDING[:2] if self.rounded[k] else ()))
 
-    def with_part(self, k: int, x: np.ndarray, rounded: bool | None = None) -> Shape:
+    def with_part(self, k: int, x: np.ndarray, rounded: bool | None = None,
+                  lifted: bool | None = None) -> Shape:
         parts = self.parts.copy()
         parts[k] = x
-        flags = list(self.rounded)
+        flags, raised = list(self.rounded), list(self.lifted)
         if rounded is not None:
             flags[k] = rounded
-        return dc.replace(self, parts=parts, rounded=tuple(flags))
+        if lifted is not None:
+            raised[k] = lifted
+            if not lifted:
+                parts[k, BOTTOM] = 0.0
+        return dc.replace(self, parts=parts, rounded=tuple(flags), lifted=tuple(raised))
 
     def added(self, x: np.ndarray, solid: bool) -> Shape:
         return dc.replace(self, parts=np.vstack([self.parts, x]),
-                          rounded=(*self.rounded, False), solid=(*self.solid, solid))
+                          rounded=(*self.rounded, False), solid=(*self.solid, solid),
+                          lifted=(*self.lifted, False))
 
     def without(self, k: int) -> Shape:
         keep = [i for i in range(len(self.rounded)) if i != k]
         return dc.replace(self, parts=self.parts[keep],
                           rounded=tuple(self.rounded[i] for i in keep),
-                          solid=tuple(self.solid[i] for i in keep))
+                          solid=tuple(self.solid[i] for i in keep),
+                          lifted=tuple(self.lifted[i] for i in keep))
+
+    @property
+    def grounded(self) -> bool:
+        """Whether a solid stands on the table."""
+        return any(s and not lifted for s, lifted in zip(self.solid, self.lifted, strict=True))
+
+    def can_lift(self, k: int) -> bool:
+        """Whether solid part k may be lifted: another solid stands on the table."""
+        return self.solid[k] and not self.lifted[k] and self.without(k).grounded
 
     def name(self) -> str:
         """"box", "rounded" or "N parts" (holes counted apart)."""
@@ -112,12 +137,13 @@ def part_of_box(box: OrientedBox, table: float) -> np.ndarray:
     """A box part with the footprint and top of `box` (at least MIN_SIDE each way)."""
     dims = np.maximum(box.dims, MIN_SIDE)
     top = max(box.center[2] + box.dims[2] / 2 - table, MIN_SIDE)
-    return np.array([box.center[0], box.center[1], box.yaw, dims[0], dims[1], top, 0, 0, 0])
+    return np.array([box.center[0], box.center[1], box.yaw, dims[0], dims[1], top, 0, 0, 0, 0])
 
 
 def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
     """Part x with a side moved outward by `value` (0-3), its top raised (4), its yaw turned
-    (5), or its rounding's r (6-8) set to `value`."""
+    (5), its rounding's r (6-8) set to `value`, or its bottom raised (9), the bottom kept
+    between the table and the top."""
     y = x.copy()
     if coordinate in SIDES:
         axis = 3 + coordinate // 2
@@ -129,7 +155,9 @@ def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
         y[0] += sign * value / 2 * u[0]
         y[1] += sign * value / 2 * u[1]
     elif coordinate == TOP:
-        y[5] = max(y[5] + value, MIN_SIDE)
+        y[5] = max(y[5] + value, y[9] + MIN_SIDE)
+    elif coordinate == BOTTOM:
+        y[9] = min(max(y[9] + value, 0.0), y[5] - MIN_SIDE)
     elif coordinate == YAW:
         y[2] += value
     else:
