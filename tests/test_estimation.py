@@ -46,7 +46,8 @@ def test_a_tube_shows_its_wall_and_the_table_through_its_hole():
     """A cylinder of radius 5 cm, 10 cm tall, minus a hole of radius 3 cm: a vertical ray
     from 50 cm up meets the top at 40 cm over the wall and the table at 50 cm in the hole,
     and the table at 50 cm beside it."""
-    parts = np.array([[0, 0, 0, 0.10, 0.10, 0.10, 1, 1, 0], [0, 0, 0, 0.06, 0.06, 2.0, 1, 1, 0]])
+    parts = np.array([[0, 0, 0, 0.10, 0.10, 0.10, 1, 1, 0, 0],
+                      [0, 0, 0, 0.06, 0.06, 2.0, 1, 1, 0, 0]])
     down = [[0, 0, -1.0]]
     for x, expected in ((0.04, 0.40), (0.0, 0.50), (0.02, 0.50), (0.07, 0.50)):
         rays = _rays([x, 0, 0.5], down)
@@ -59,12 +60,27 @@ def test_a_tube_shows_its_wall_and_the_table_through_its_hole():
 def test_a_sphere_is_met_where_the_quadric_says():
     """A ball of radius 5 cm on the table (a box part rounded (1, 1, 1)): a vertical ray at
     3 cm from its axis meets it at z = 5 + 4 cm, 41 cm below a sensor at 50 cm."""
-    parts = np.array([[0, 0, 0, 0.1, 0.1, 0.1, 1, 1, 1]])
+    parts = np.array([[0, 0, 0, 0.1, 0.1, 0.1, 1, 1, 1, 0]])
     rays = _rays([0.03, 0, 0.5], [[0, 0, -1.0]])
     base = forward.table_depths(rays.origins, rays.directions, 0.0, EXTENT)
     depth = forward.shape_depths(rays.origins, rays.directions, rays.planes, parts,
                                  np.array([True]), base, 0.0, forward.NO_CLIP)
     assert depth[0, 0] == pytest.approx(0.5 - 0.09)
+
+
+def test_a_lifted_part_is_met_from_above_and_passed_beneath():
+    """A 10 cm cube part lifted to span 4-10 cm above the table (a handle, an arm): a ray
+    straight down from 50 cm meets its top at 40 cm; a level ray 2 cm above the table passes
+    beneath it and meets nothing, one at 6 cm meets its near side 5 cm short of the axis."""
+    parts = np.array([[0, 0, 0, 0.1, 0.1, 0.10, 0, 0, 0, 0.04]])
+    for origin, direction, expected in (([0, 0, 0.5], [0, 0, -1.0], 0.40),
+                                        ([-0.5, 0, 0.02], [1.0, 0, 0], math.inf),
+                                        ([-0.5, 0, 0.06], [1.0, 0, 0], 0.45)):
+        rays = _rays(origin, [direction])
+        base = forward.table_depths(rays.origins, rays.directions, 0.0, EXTENT)
+        depth = forward.shape_depths(rays.origins, rays.directions, rays.planes, parts,
+                                     np.array([True]), base, 0.0, forward.NO_CLIP)
+        assert depth[0, 0] == pytest.approx(expected), origin
 
 
 def test_a_merged_zone_reads_the_signal_weighted_mean_depth():

@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.estimation.forward import PART_SIZE
 
 #: The roundings a solid part is tried with: an upright cylinder, an ellipsoid, and a
 #: cylinder lying along either side (`forward` module doc); a hole is a box or the first.
@@ -25,7 +26,7 @@ SIDES, TOP, YAW, ROUNDING, BOTTOM = (0, 1, 2, 3), 4, 5, (6, 7, 8), 9
 
 @dc.dataclass(frozen=True)
 class Shape:
-    """Solid parts minus holes (`forward.PART_SIZE` numbers each), which parts have their
+    """Solid parts minus holes (`PART_SIZE` numbers each), which parts have their
     rounding free (the others are boxes) and which solids are lifted, their bottom free (the
     others stand on the table): a mug's handle, a toy's arm."""
 
@@ -35,6 +36,8 @@ class Shape:
     lifted: tuple[bool, ...] = ()
 
     def __post_init__(self) -> None:
+        if self.parts.ndim != 2 or self.parts.shape[1] != PART_SIZE:
+            raise ValueError(f"Shape.parts: shape {self.parts.shape}, expected (n, {PART_SIZE})")
         if len(self.lifted) != len(self.solid):
             object.__setattr__(self, "lifted", (False,) * len(self.solid))
 
