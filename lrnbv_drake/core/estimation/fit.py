@@ -27,9 +27,7 @@ import scipy.cluster.hierarchy
 from lrnbv_drake.core.estimation import forward
 from lrnbv_drake.core.estimation.forward import NO_CLIP, ReadingRule, ZoneRays
 from lrnbv_drake.core.estimation.shape import (
-    BOTTOM,
     HOLE_HEIGHT,
-    ROUNDING,
     ROUNDINGS,
     SIDES,
     TOP,
@@ -143,11 +141,10 @@ class Problem:
             axis = 3 + coordinate // 2
             region = moved(moved(x, coordinate, hi), coordinate ^ 1, -(x[axis] + lo) + 1e-4)
             return rays.crossing(region, self.table, near)
-        if coordinate in (TOP, BOTTOM) and not shape.rounded[k]:
+        if coordinate == TOP and not shape.rounded[k]:
             region = x.copy()
             region[5] = hi - lo + 1e-4
-            level = x[5] if coordinate == TOP else x[9]
-            return rays.crossing(region, self.table + max(level + lo, 0.0), near)
+            return rays.crossing(region, self.table + x[5] + lo, near)
         region = x.copy()
         if coordinate == YAW:
             region[3] = region[4] = math.hypot(x[3], x[4])
@@ -178,8 +175,7 @@ class Problem:
         if key in self._reclassed:
             return self._reclassed[key][1]
         shape = fit.shape
-        x = np.r_[shape.parts[k][:6], (0, 0, 0) if rounding is None else rounding,
-                  shape.parts[k][9]]
+        x = np.r_[shape.parts[k][:6], (0, 0, 0) if rounding is None else rounding]
         if rounding is not None and not shape.rounded[k]:
             x[3:6] *= _volume_scale(np.array(rounding))
         trial = self.evaluate(shape.with_part(k, x, rounded=rounding is not None))
@@ -199,9 +195,8 @@ class Problem:
         steps about a quarter of `span` (the sides and top; the yaw and rounding in
         proportion), moved while its best lies at the grid's edge, then of the finest
         steps."""
-        fine = (self.step,) * 5 + (math.radians(0.2),) + (0.02,) * 3 + (self.step,)
-        coarse = ((span / 4,) * 5 + (math.radians(1.5) * span / 0.03,)
-                  + (min(span * 5, 0.25),) * 3 + (span / 4,))
+        fine = (self.step,) * 5 + (math.radians(0.2),) + (0.02,) * 3
+        coarse = (span / 4,) * 5 + (math.radians(1.5) * span / 0.03,) + (min(span * 5, 0.25),) * 3
         for _ in range(max_sweeps):
             before = fit.cost
             for k in range(len(fit.shape.rounded)) if only is None else (only,):
@@ -222,7 +217,7 @@ class Problem:
         travelled = 0.0
         while True:
             x = fit.shape.parts[k]
-            centre = x[coordinate] if coordinate in ROUNDING else 0.0
+            centre = x[coordinate] if coordinate > YAW else 0.0
             grid = centre + step * np.arange(-3, 4)
             xs = np.array([moved(x, coordinate, g) for g in grid])
             if fit.shape.solid[k]:
@@ -240,7 +235,7 @@ class Problem:
                 return fit
             fit = self._updated(fit, fit.shape.with_part(k, xs[best]), zones)
             travelled += abs(grid[best] - centre)
-            if best not in (0, len(grid) - 1) or coordinate in ROUNDING or travelled >= reach:
+            if best not in (0, len(grid) - 1) or coordinate > YAW or travelled >= reach:
                 return fit
 
 
@@ -301,20 +296,15 @@ def _proposed(problem: Problem, fit: Fit, solid: bool) -> tuple[np.ndarray | Non
     lo, hi = local.min(axis=0) - grow, local.max(axis=0) + grow
     height = max(points[:, 2].max() - problem.table + 0.005, 0.01) if solid else HOLE_HEIGHT
     return np.array([*(rotation @ ((lo + hi) / 2)), yaw, *np.maximum(hi - lo, 0.01), height,
-                     0, 0, 0, 0]), len(points)
+                     0, 0, 0]), len(points)
 
 
 def _halves(shape: Shape, k: int, axis: int) -> Shape:
-    """Solid part k cut across its side `axis` (0: length, 1: width) into two boxes, lifted
-    as it is."""
-    x = np.r_[shape.parts[k][:6], 0, 0, 0, shape.parts[k][BOTTOM]]
+    """Solid part k cut across its side `axis` (0: length, 1: width) into two boxes."""
+    x = np.r_[shape.parts[k][:6], 0, 0, 0]
     size = x[3 + axis]
-    cut = (shape.without(k).added(moved(x, 2 * axis + 1, -size / 2), True)
-           .added(moved(x, 2 * axis, -size / 2), True))
-    n = len(cut.solid)
-    for i in (n - 2, n - 1):
-        cut = cut.with_part(i, cut.parts[i], lifted=shape.lifted[k])
-    return cut
+    return (shape.without(k).added(moved(x, 2 * axis + 1, -size / 2), True)
+            .added(moved(x, 2 * axis, -size / 2), True))
 
 
 @dc.dataclass(frozen=True)
@@ -354,30 +344,18 @@ def moves(problem: Problem, fit: Fit, max_parts: int) -> list[Move]:
                      key=lambda m: -int(outlier[near[m.k]].sum())))
 
 
-def _lifted(problem: Problem, fit: Fit, k: int) -> list[Fit]:
-    """Solid part k lifted (its bottom searched, from the table up), where another solid
-    stands on the table."""
-    shape = fit.shape
-    if not shape.can_lift(k):
-        return []
-    trial = problem.evaluate(shape.with_part(k, shape.parts[k], lifted=True))
-    return [problem.refine(trial, max(0.01, shape.parts[k][5] / 4), only=k,  # its top / 4
-                           max_sweeps=2)]
-
-
 def _tried(problem: Problem, fit: Fit, move: Move, max_parts: int) -> list[Fit]:
     """The shapes `move` proposes, each searched near it."""
     shape, n = fit.shape, len(fit.shape.solid)
     if move.kind == "class":
-        out = [_classed(problem, fit, move.k, 0.01), *_lifted(problem, fit, move.k)]
+        out = [_classed(problem, fit, move.k, 0.01)]
         if shape.solid[move.k] and n < max_parts:
             out += [problem.refine(problem.evaluate(_halves(shape, move.k, axis)),
                                    shape.parts[move.k][3 + axis] / 4, max_sweeps=1)
                     for axis in (0, 1)]
         return out
     grown = problem.evaluate(shape.added(move.part, move.kind == "solid"))
-    classed = _classed(problem, grown, n, max(0.02, move.part[3:5].max() / 2))
-    return [classed, *_lifted(problem, classed, n)]
+    return [_classed(problem, grown, n, max(0.02, move.part[3:5].max() / 2))]
 
 
 def choose_structure(problem: Problem, fit: Fit, max_parts: int, budget: int,
@@ -393,7 +371,7 @@ def choose_structure(problem: Problem, fit: Fit, max_parts: int, budget: int,
         # A part is dropped where, unrefined, it costs less than twice its parameters'
         # price: refining the rest may win the difference back; more it cannot.
         trials = [t for t in (problem.evaluate(shape.without(k)) for k in range(len(shape.solid))
-                              if not shape.solid[k] or shape.without(k).grounded)
+                              if not shape.solid[k] or sum(shape.solid) > 1)
                   if problem.score(t) - problem.score(fit)
                   < (shape.n_params - t.shape.n_params) * math.log(len(problem))]
         # The simplest shape, a box around the estimate, is always tried again: a structure

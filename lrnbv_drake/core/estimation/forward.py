@@ -36,9 +36,8 @@ from lrnbv_drake.core.sensing.sensor import (
 )
 from lrnbv_drake.core.sensing.tof_device import MERGED_DEPTHS, DeviceBehaviour, sorted_target
 
-#: Numbers per part: centre x, y, yaw, length, width, top, rx, ry, rz, bottom (the top and
-#: bottom above the table).
-PART_SIZE = 10
+#: Numbers per part: centre x, y, yaw, length, width, height, rx, ry, rz.
+PART_SIZE = 9
 #: The clip plane that cuts nothing.
 NO_CLIP = np.array([0.0, 0.0, 0.0, 1.0])
 
@@ -149,8 +148,8 @@ def _interval(o, d, x, c, s, table, clip):
     """(t0, t1): where the ray o + t d is inside part x, whose yaw has cosine c and sine s
     (and the clip plane); t0 > t1 if nowhere."""
     px, py = o[0] - x[0], o[1] - x[1]
-    half = (0.5 * x[3], 0.5 * x[4], 0.5 * (x[5] - x[9]))
-    p = (c * px + s * py, -s * px + c * py, o[2] - table - x[9] - half[2])
+    half = (0.5 * x[3], 0.5 * x[4], 0.5 * x[5])
+    p = (c * px + s * py, -s * px + c * py, o[2] - table - half[2])
     v = (c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2])
     t0, t1 = -np.inf, np.inf
     qa, qb, qc = 0.0, 0.0, -1.0
@@ -318,7 +317,7 @@ def _misses(o, planes, x, c, s, floor):
             v = (0.5 if corner & 2 else -0.5) * x[4]
             px = x[0] + c * u - s * v - o[0]
             py = x[1] + s * u + c * v - o[1]
-            pz = floor + (x[5] if corner & 4 else x[9]) - o[2]
+            pz = floor + (x[5] if corner & 4 else 0.0) - o[2]
             if planes[i, 0] * px + planes[i, 1] * py + planes[i, 2] * pz <= 1e-9:
                 beyond = False
                 break

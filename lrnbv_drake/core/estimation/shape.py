@@ -1,6 +1,5 @@
-"""The fitted shape: solid parts minus holes, each a box between two heights above the table
-with a quadric rounding (`forward` module doc), and the moves of one coordinate the search
-makes."""
+"""The fitted shape: solid parts minus holes, each a box standing on the table with a
+quadric rounding (`forward` module doc), and the moves of one coordinate the search makes."""
 
 from __future__ import annotations
 
@@ -19,73 +18,51 @@ ROUNDINGS = ((1.0, 1.0, 0.0), (1.0, 1.0, 1.0), (0.0, 1.0, 1.0), (1.0, 0.0, 1.0))
 MIN_SIDE = 0.002
 #: A hole's height: it runs from the table up through every solid.
 HOLE_HEIGHT = 2.0
-#: Coordinates of a part: its four sides (moved outward), its top, its yaw, its rounding's
-#: three axes, its bottom (raised).
-SIDES, TOP, YAW, ROUNDING, BOTTOM = (0, 1, 2, 3), 4, 5, (6, 7, 8), 9
-
+#: Coordinates of a part: its four sides (moved outward), its top, its yaw, its rounding.
+SIDES, TOP, YAW = (0, 1, 2, 3), 4, 5
 
 @dc.dataclass(frozen=True)
 class Shape:
-    """Solid parts minus holes (`PART_SIZE` numbers each), which parts have their
-    rounding free (the others are boxes) and which solids are lifted, their bottom free (the
-    others stand on the table): a mug's handle, a toy's arm."""
+    """Solid parts minus holes (`PART_SIZE` numbers each) and which parts have their
+    rounding free (the others are boxes)."""
 
     parts: np.ndarray
     rounded: tuple[bool, ...]
     solid: tuple[bool, ...]
-    lifted: tuple[bool, ...] = ()
 
     def __post_init__(self) -> None:
         if self.parts.ndim != 2 or self.parts.shape[1] != PART_SIZE:
             raise ValueError(f"Shape.parts: shape {self.parts.shape}, expected (n, {PART_SIZE})")
-        if len(self.lifted) != len(self.solid):
-            object.__setattr__(self, "lifted", (False,) * len(self.solid))
 
     @property
     def n_params(self) -> int:
-        return sum(len(self.coordinates(k)) for k in range(len(self.solid)))
+        return sum((6 if s else 5) + (3 if s else 2) * r
+                       for r, s in zip(self.rounded, self.solid, strict=True))
 
     def coordinates(self, k: int) -> tuple[int, ...]:
         """The coordinates part k is searched in (a hole has no top and no vertical
-        rounding: it runs through every solid)."""
+        rounding)."""
         if self.solid[k]:
-            return (*SIDES, TOP, YAW, *(ROUNDING if self.rounded[k] else ()),
-                    *((BOTTOM,) if self.lifted[k] else ()))
-        return (*SIDES, YAW, *(ROUNDING[:2] if self.rounded[k] else ()))
+            return tuple(range(9 if self.rounded[k] else 6))
+        return (0, 1, 2, 3, YAW, 6, 7) if self.rounded[k] else (0, 1, 2, 3, YAW)
 
-    def with_part(self, k: int, x: np.ndarray, rounded: bool | None = None,
-                  lifted: bool | None = None) -> Shape:
+    def with_part(self, k: int, x: np.ndarray, rounded: bool | None = None) -> Shape:
         parts = self.parts.copy()
         parts[k] = x
-        flags, raised = list(self.rounded), list(self.lifted)
+        flags = list(self.rounded)
         if rounded is not None:
             flags[k] = rounded
-        if lifted is not None:
-            raised[k] = lifted
-            if not lifted:
-                parts[k, BOTTOM] = 0.0
-        return dc.replace(self, parts=parts, rounded=tuple(flags), lifted=tuple(raised))
+        return dc.replace(self, parts=parts, rounded=tuple(flags))
 
     def added(self, x: np.ndarray, solid: bool) -> Shape:
         return dc.replace(self, parts=np.vstack([self.parts, x]),
-                          rounded=(*self.rounded, False), solid=(*self.solid, solid),
-                          lifted=(*self.lifted, False))
+                          rounded=(*self.rounded, False), solid=(*self.solid, solid))
 
     def without(self, k: int) -> Shape:
         keep = [i for i in range(len(self.rounded)) if i != k]
         return dc.replace(self, parts=self.parts[keep],
                           rounded=tuple(self.rounded[i] for i in keep),
-                          solid=tuple(self.solid[i] for i in keep),
-                          lifted=tuple(self.lifted[i] for i in keep))
-
-    @property
-    def grounded(self) -> bool:
-        """Whether a solid stands on the table."""
-        return any(s and not lifted for s, lifted in zip(self.solid, self.lifted, strict=True))
-
-    def can_lift(self, k: int) -> bool:
-        """Whether solid part k may be lifted: another solid stands on the table."""
-        return self.solid[k] and not self.lifted[k] and self.without(k).grounded
+                          solid=tuple(self.solid[i] for i in keep))
 
     def name(self) -> str:
         """"box", "rounded" or "N parts" (holes counted apart)."""
@@ -140,13 +117,12 @@ def part_of_box(box: OrientedBox, table: float) -> np.ndarray:
     """A box part with the footprint and top of `box` (at least MIN_SIDE each way)."""
     dims = np.maximum(box.dims, MIN_SIDE)
     top = max(box.center[2] + box.dims[2] / 2 - table, MIN_SIDE)
-    return np.array([box.center[0], box.center[1], box.yaw, dims[0], dims[1], top, 0, 0, 0, 0])
+    return np.array([box.center[0], box.center[1], box.yaw, dims[0], dims[1], top, 0, 0, 0])
 
 
 def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
     """Part x with a side moved outward by `value` (0-3), its top raised (4), its yaw turned
-    (5), its rounding's r (6-8) set to `value`, or its bottom raised (9), the bottom kept
-    between the table and the top."""
+    (5), or its rounding's r (6-8) set to `value`."""
     y = x.copy()
     if coordinate in SIDES:
         axis = 3 + coordinate // 2
@@ -158,9 +134,7 @@ def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
         y[0] += sign * value / 2 * u[0]
         y[1] += sign * value / 2 * u[1]
     elif coordinate == TOP:
-        y[5] = max(y[5] + value, y[9] + MIN_SIDE)
-    elif coordinate == BOTTOM:
-        y[9] = min(max(y[9] + value, 0.0), y[5] - MIN_SIDE)
+        y[5] = max(y[5] + value, MIN_SIDE)
     elif coordinate == YAW:
         y[2] += value
     else:
