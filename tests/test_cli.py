@@ -111,3 +111,18 @@ def test_user_mesh_with_scale_and_pose(tmp_path):
     on_part = points[points[:, 2] > 0.02]
     assert len(on_part) > 0
     assert np.all(on_part[:, 2] < 0.04 + 0.02)  # nothing measured above the 4 cm part
+
+
+def test_compare_reads_two_campaign_folders_and_refuses_a_folder_without_results(
+        tmp_path, capsys):
+    """The same episode 3.0 mm off before, 1.0 mm after: one pair, lower by 2 mm."""
+    for name, error in (("before", "0.003"), ("after", "0.001")):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "results.csv").write_text(
+            f"planner,object,trial,worst_err\nlrnbv,can,0,{error}\n")
+    assert main(["compare", str(tmp_path / "before"), str(tmp_path / "after"),
+                 "--metrics", "worst_err"]) == 0
+    assert "| lrnbv | worst_err (mm) | 1 | 3.0 -> 1.0 |" in capsys.readouterr().out
+    assert main(["compare", str(tmp_path / "before"), str(tmp_path)]) == 2
+    assert f"{tmp_path / 'results.csv'}: cannot read it" in capsys.readouterr().err
+

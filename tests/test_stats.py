@@ -14,6 +14,7 @@ from lrnbv_drake.core.evaluation.stats import (
     group_summaries,
     mann_whitney,
     min_two_sided_p,
+    paired_changes,
     summarize,
 )
 
@@ -168,3 +169,25 @@ def test_group_summaries_and_comparisons():
     assert (c.object, c.metric, c.reference, c.other) == ("box", "n_poses", "lrnbv", "heu")
     assert c.test == mann_whitney([5, 7, 6], [13, 13])
     assert c.test.u == 0
+
+
+def test_paired_changes_match_episodes_by_planner_object_and_trial():
+    """Five episodes before and after, the after rows shuffled and one of them missing a
+    value: errors 1, 2, 3, 4 mm (the fifth left out) become 1, 1, 8, 2 mm; moves of -1, +5, -2
+    mm, so with a 0.5 mm tolerance two fell and one rose; the median 2.5 -> 1.5 mm; the
+    Wilcoxon p that of scipy on the four pairs."""
+    before = [{"planner": "lrnbv", "object": o, "trial": "0", "worst_err": e}
+              for o, e in zip("abcde", ("0.001", "0.002", "0.003", "0.004", "0.005"))]
+    before.append({"planner": "heu", "object": "a", "trial": "0", "worst_err": "0.001"})
+    after = [{"planner": "lrnbv", "object": o, "trial": "0", "worst_err": e}
+             for o, e in zip("dbace", ("0.002", "0.001", "0.001", "0.008", ""))]
+    after.append({"planner": "heu", "object": "a", "trial": "0", "worst_err": "0.001"})
+    lrnbv, heu = paired_changes(before, after, ["worst_err"], {"worst_err": 0.0005})
+    assert (lrnbv.planner, lrnbv.n, lrnbv.lower, lrnbv.higher) == ("lrnbv", 4, 2, 1)
+    assert lrnbv.before.median == pytest.approx(0.0025)
+    assert lrnbv.after.median == pytest.approx(0.0015)
+    assert lrnbv.after_mean == pytest.approx(0.003)
+    assert lrnbv.p == pytest.approx(stats.wilcoxon([0.001, 0.002, 0.003, 0.004],
+                                                   [0.001, 0.001, 0.008, 0.002]).pvalue)
+    assert (heu.n, heu.lower, heu.higher) == (1, 0, 0) and math.isnan(heu.p)
+

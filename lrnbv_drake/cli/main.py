@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 
 from lrnbv_drake.cli.benchmark import add_benchmark_command, run_benchmark
+from lrnbv_drake.cli.compare import add_compare_command, run_compare_command
 from lrnbv_drake.cli.hardware import add_hardware_commands, run_hardware_command
 from lrnbv_drake.cli.objects import add_objects_command, run_objects_command
 from lrnbv_drake.cli.refit import add_refit_command, run_refit_command
@@ -22,7 +23,7 @@ from lrnbv_drake.cli.sensor import add_sensor_commands, run_sensor_command
 COMMANDS = {"run": run_run_command, "objects": run_objects_command,
             "benchmark": run_benchmark, "sensor": run_sensor_command,
             "hardware": run_hardware_command, "refit": run_refit_command,
-            "results": run_results}
+            "results": run_results, "compare": run_compare_command}
 
 EPILOG = """\
 start with:
@@ -33,6 +34,7 @@ start with:
   lrnbv hardware --dry-run --out out/cell        rehearse the real cell; nothing moves
   lrnbv refit out/cell --scenario sensor.yaml    a recorded episode's box, recalibrated
   lrnbv results family                           regenerate docs/results.md's family tables
+  lrnbv compare BEFORE AFTER                     two campaigns, episode by episode
 
 `lrnbv COMMAND --help` describes each command. Exit status: 0 done, 1 the run ended without
 its result (no object found, failed episodes, a fault), 2 bad input, 130 interrupted (Ctrl-C).
@@ -58,6 +60,7 @@ def _parser() -> argparse.ArgumentParser:
     add_hardware_commands(sub)
     add_refit_command(sub)
     add_results_command(sub)
+    add_compare_command(sub)
     return parser
 
 

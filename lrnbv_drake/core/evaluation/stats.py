@@ -156,7 +156,8 @@ Row = Mapping[str, object]
 
 
 def _values(rows: Iterable[Row], metric: str) -> list[float]:
-    return [math.nan if row.get(metric) is None else float(row[metric]) for row in rows]
+    """Each row's `metric` as a float, NaN where it has none (None, or an empty csv field)."""
+    return [math.nan if row.get(metric) in (None, "") else float(row[metric]) for row in rows]
 
 
 def group_summaries(
@@ -197,3 +198,64 @@ def compare_planners(
                            mann_whitney(_values(ref_rows, m), _values(other_rows, m)))
                 for m in metrics)
     return table
+
+
+@dc.dataclass(frozen=True)
+class PairedChange:
+    """One metric of one planner's episodes before and after a change, pair by pair: the same
+    (object, trial), so the same seed and placement, and only the change between them.
+
+    Args:
+        n: pairs with a value on both sides.
+        before, after: median and quartiles of each side's values over those pairs.
+        before_mean, after_mean: their means (a share for a yes/no metric).
+        before_p95, after_p95: their 95th percentiles.
+        lower, higher: pairs whose value fell, rose, by more than the tolerance.
+        p: two-sided Wilcoxon signed-rank p of the differences; NaN where none differs.
+    """
+
+    planner: str
+    metric: str
+    n: int
+    before: Summary
+    after: Summary
+    before_mean: float
+    after_mean: float
+    before_p95: float
+    after_p95: float
+    lower: int
+    higher: int
+    p: float
+
+
+def paired_changes(before: Sequence[Row], after: Sequence[Row], metrics: Sequence[str],
+                   tolerance: Mapping[str, float] | None = None) -> list[PairedChange]:
+    """Each planner's `metrics` compared pair by pair between two campaigns' rows (results.csv
+    rows, matched on planner, object and trial; a pair missing either value is left out).
+    Why paired: a change to the estimator moves each episode by less than episodes differ
+    from each other, which a test of the pooled samples cannot see. `tolerance` (per metric,
+    default 0) is the move that counts as lower or higher."""
+    def key(row: Row) -> tuple[str, str, str]:
+        return str(row["planner"]), str(row["object"]), str(row["trial"])
+
+    later = {key(row): row for row in after}
+    out = []
+    for planner in dict.fromkeys(str(row["planner"]) for row in before):
+        pairs = [(row, later[key(row)]) for row in before
+                 if row["planner"] == planner and key(row) in later]
+        for metric in metrics:
+            x = np.array(_values((a for a, _ in pairs), metric))
+            y = np.array(_values((b for _, b in pairs), metric))
+            both = np.isfinite(x) & np.isfinite(y)
+            x, y = x[both], y[both]
+            step = (tolerance or {}).get(metric, 0.0)
+            moved = np.abs(y - x) > 0.0
+            p = (float(stats.wilcoxon(x, y).pvalue) if moved.any() else math.nan)
+            def of(v: np.ndarray, f) -> float:
+                return float(f(v)) if len(v) else math.nan
+            out.append(PairedChange(
+                planner, metric, len(x), summarize(x), summarize(y), of(x, np.mean),
+                of(y, np.mean), of(x, lambda v: np.percentile(v, 95)),
+                of(y, lambda v: np.percentile(v, 95)),
+                int(np.sum(y < x - step)), int(np.sum(y > x + step)), p))
+    return out

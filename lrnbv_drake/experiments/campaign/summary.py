@@ -202,6 +202,28 @@ def write_results_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
         writer.writerows(rows)
 
 
+def read_results_csv(folder: str | Path) -> list[dict[str, str]]:
+    """The rows of a campaign folder's results.csv (`write_results_csv`).
+
+    Raises:
+        ValueError: no results.csv in `folder`, or one without the campaign's planner,
+            object and trial columns.
+    """
+    path = Path(folder) / "results.csv"
+    try:
+        with path.open(newline="") as f:
+            rows = list(csv.DictReader(f))
+            columns = set(rows[0]) if rows else set()
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read it ({e.strerror}); expected a campaign's "
+                         f"folder (`lrnbv benchmark --out` or out/results/NAME)") from e
+    missing = {"planner", "object", "trial"} - columns
+    if missing:
+        raise ValueError(f"{path}: no episodes with {', '.join(sorted(missing))}; expected "
+                         f"the results.csv `lrnbv benchmark` writes")
+    return rows
+
+
 def _fmt(value: float, snap: bool = True) -> str:
     """Three significant digits; with `snap`, 0 for a value that is 0 but for float rounding
     (an error of 1.11e-16 m is no error; a p-value of 1e-12 is not 0)."""
