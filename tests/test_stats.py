@@ -177,10 +177,10 @@ def test_paired_changes_match_episodes_by_planner_object_and_trial():
     mm, so with a 0.5 mm tolerance two fell and one rose; the median 2.5 -> 1.5 mm; the
     Wilcoxon p that of scipy on the four pairs."""
     before = [{"planner": "lrnbv", "object": o, "trial": "0", "worst_err": e}
-              for o, e in zip("abcde", ("0.001", "0.002", "0.003", "0.004", "0.005"))]
+              for o, e in zip("abcde", ("0.001", "0.002", "0.003", "0.004", "0.005"), strict=True)]
     before.append({"planner": "heu", "object": "a", "trial": "0", "worst_err": "0.001"})
     after = [{"planner": "lrnbv", "object": o, "trial": "0", "worst_err": e}
-             for o, e in zip("dbace", ("0.002", "0.001", "0.001", "0.008", ""))]
+             for o, e in zip("dbace", ("0.002", "0.001", "0.001", "0.008", ""), strict=True)]
     after.append({"planner": "heu", "object": "a", "trial": "0", "worst_err": "0.001"})
     lrnbv, heu = paired_changes(before, after, ["worst_err"], {"worst_err": 0.0005})
     assert (lrnbv.planner, lrnbv.n, lrnbv.lower, lrnbv.higher) == ("lrnbv", 4, 2, 1)
