@@ -43,10 +43,15 @@ def add_compare_command(subparsers: argparse._SubParsersAction) -> None:
                              f"{','.join(METRICS)})")
 
 
+def _is_error(metric: str) -> bool:
+    """Whether `metric` is a length error in metres (shown in mm, moved by a tolerance)."""
+    return "err" in metric
+
+
 def _value(change: PairedChange, value: float) -> str:
     if not math.isfinite(value):
         return "n/a"
-    return f"{value * 1000:.1f}" if "err" in change.metric else f"{value:.3g}"
+    return f"{value * 1000:.1f}" if _is_error(change.metric) else f"{value:.3g}"
 
 
 def table(changes: list[PairedChange]) -> str:
@@ -55,7 +60,7 @@ def table(changes: list[PairedChange]) -> str:
              "| p95 before -> after | lower | higher | Wilcoxon p |",
              "|---|---|---|---|---|---|---|---|---|"]
     for c in changes:
-        unit = " (mm)" if "err" in c.metric else ""
+        unit = " (mm)" if _is_error(c.metric) else ""
         p = "n/a (no pair moved)" if math.isnan(c.p) else f"{c.p:.3g}"
         lines.append(
             f"| {c.planner} | {c.metric}{unit} | {c.n} | {_value(c, c.before.median)} -> "
@@ -78,7 +83,7 @@ def run_compare_command(args: argparse.Namespace) -> int:
         print(f"lrnbv compare: error: {e}", file=sys.stderr)
         return 2
     changes = paired_changes(before, after, metrics,
-                             {m: ERROR_TOLERANCE for m in metrics if "err" in m})
+                             {m: ERROR_TOLERANCE for m in metrics if _is_error(m)})
     if not any(c.n for c in changes):
         print(f"lrnbv compare: error: no episode of {args.before} is in {args.after} with a "
               f"value; expected two campaigns of the same manifest", file=sys.stderr)

@@ -238,6 +238,13 @@ def paired_changes(before: Sequence[Row], after: Sequence[Row], metrics: Sequenc
     def key(row: Row) -> tuple[str, str, str]:
         return str(row["planner"]), str(row["object"]), str(row["trial"])
 
+    def p95(v: np.ndarray) -> float:
+        return float(np.percentile(v, 95)) if len(v) else math.nan
+
+    def mean(v: np.ndarray) -> float:
+        return float(np.mean(v)) if len(v) else math.nan
+
+    tolerance = tolerance or {}
     later = {key(row): row for row in after}
     out = []
     for planner in dict.fromkeys(str(row["planner"]) for row in before):
@@ -248,14 +255,9 @@ def paired_changes(before: Sequence[Row], after: Sequence[Row], metrics: Sequenc
             y = np.array(_values((b for _, b in pairs), metric))
             both = np.isfinite(x) & np.isfinite(y)
             x, y = x[both], y[both]
-            step = (tolerance or {}).get(metric, 0.0)
-            moved = np.abs(y - x) > 0.0
-            p = (float(stats.wilcoxon(x, y).pvalue) if moved.any() else math.nan)
-            def of(v: np.ndarray, f) -> float:
-                return float(f(v)) if len(v) else math.nan
+            step = tolerance.get(metric, 0.0)
+            p = float(stats.wilcoxon(x, y).pvalue) if np.any(x != y) else math.nan
             out.append(PairedChange(
-                planner, metric, len(x), summarize(x), summarize(y), of(x, np.mean),
-                of(y, np.mean), of(x, lambda v: np.percentile(v, 95)),
-                of(y, lambda v: np.percentile(v, 95)),
-                int(np.sum(y < x - step)), int(np.sum(y > x + step)), p))
+                planner, metric, len(x), summarize(x), summarize(y), mean(x), mean(y),
+                p95(x), p95(y), int(np.sum(y < x - step)), int(np.sum(y > x + step)), p))
     return out
