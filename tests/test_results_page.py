@@ -76,22 +76,31 @@ def test_results_runs_the_manifest_writes_its_tables_and_regenerates_them_identi
     first = page.read_text()
     assert first.startswith("# Results\n\nHand-written prose.\n\n<!-- results: tiny -->\n")
     assert first.endswith("<!-- end results: tiny -->\n\nMore prose.\n")
+    assert "`lrnbv benchmark --planners heu --objects horizontal_box --trials 1 --seed 3`" in first
     with (tmp_path / "out" / "tiny" / "results.csv").open() as f:
         (row,) = list(csv.DictReader(f))
-    # The per-object table's worst error and poses are the episode's, in millimetres.
-    line = next(s for s in first.splitlines() if s.startswith("| horizontal_box |"))
-    assert line.split(" | ")[1] == f"{1000 * float(row['worst_err']):.1f}"
-    assert line.rstrip(" |").split(" | ")[-1] == f"{float(row['n_poses']):g}"
-    assert "`lrnbv benchmark --planners heu --objects horizontal_box --trials 1 --seed 3`" in first
+    worst, poses = f"{1000 * float(row['worst_err']):.1f}", f"{float(row['n_poses']):g}"
+    # The page's pooled table: one episode, so its median, p95 and max are the episode's.
+    pooled = next(s for s in first.splitlines() if s.startswith("| HEU |")).split(" | ")
+    assert pooled[1:4] == [worst] * 3
+    assert "[results/tiny.md](results/tiny.md)" in first
+    # The page per object, beside it: the episode's worst error and poses, in millimetres.
+    detail = tmp_path / "results" / "tiny.md"
+    first_detail = detail.read_text()
+    assert first_detail.startswith("# Tiny: per object\n")
+    line = next(s for s in first_detail.splitlines() if s.startswith("| horizontal_box |"))
+    assert line.split(" | ")[1] == worst
+    assert line.rstrip(" |").split(" | ")[-1] == poses
     # Again: resumed, the same tables.
-    assert main(argv) == 0 and page.read_text() == first
+    assert main(argv) == 0 and page.read_text() == first and detail.read_text() == first_detail
     # Begun on another commit: refused, then run again from nothing, the same tables.
     stamp = tmp_path / "out" / "tiny" / "source.txt"
     here = stamp.read_text()
     stamp.write_text("0000000-0000000 0000000\n")
     assert main(argv) == 2 and page.read_text() == first
     assert main([*argv, "--restart"]) == 0
-    assert page.read_text() == first and stamp.read_text() == here
+    assert page.read_text() == first and detail.read_text() == first_detail
+    assert stamp.read_text() == here
 
 
 def test_the_tests_table_gives_each_planners_median_and_scipys_exact_p_per_object():

@@ -1,5 +1,6 @@
-"""`lrnbv results`: run the campaigns docs/results.md cites (benchmarks/campaigns/*.yaml) and
-write their tables into the page (`lrnbv_drake.experiments.campaign.results_page`).
+"""`lrnbv results`: run the campaigns docs/results.md cites (benchmarks/campaigns/*.yaml),
+write their pooled tables into the page and their tables per object beside it
+(docs/results/NAME.md; `lrnbv_drake.experiments.campaign.results_page`).
 
 Each campaign runs into OUT/NAME and resumes there, as `lrnbv benchmark` does, but only on the
 source that began it (OUT/NAME/source.txt: the package's and the models' git trees):
@@ -27,7 +28,9 @@ from lrnbv_drake.experiments.campaign.results_page import (
     MANIFEST_DIR,
     Manifest,
     ManifestError,
-    campaign_tables,
+    campaign_block,
+    detail_page,
+    detail_path,
     manifests,
     splice,
 )
@@ -117,8 +120,11 @@ def run_results(args: argparse.Namespace) -> int:
                     [*manifest.args, "--out", str(folder), "--jobs", str(args.jobs)]))
                 records = run_campaign(config)
             status |= any(r["campaign"]["status"] != "ok" for r in records)
-            text = splice(text, manifest, campaign_tables(manifest, config, records, here))
+            text = splice(text, manifest, campaign_block(manifest, config, records, here))
             page.write_text(text)
+            detail = detail_path(page, manifest)
+            detail.parent.mkdir(exist_ok=True)
+            detail.write_text(detail_page(manifest, config, records, here))
     except (ManifestError, CampaignError, ScenarioError, OutDirError, OSError) as e:
         print(f"lrnbv results: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -1,10 +1,12 @@
 """docs/results.md's tables regenerated from committed campaign manifests (`lrnbv results`).
 
 A manifest (`benchmarks/campaigns/NAME.yaml`) is the campaign a page cites: its title and the
-`lrnbv benchmark` arguments (planners, objects, trials, scenario, seed). Its tables go between
-the page's markers `<!-- results: NAME -->` and `<!-- end results: NAME -->`; the prose
-around them is written by hand. The tables hold no wall times, so the same manifest on the
-same commit gives the same tables (every random choice of a campaign derives from its seed).
+`lrnbv benchmark` arguments (planners, objects, trials, scenario, seed). Its pooled figures go
+between the page's markers `<!-- results: NAME -->` and `<!-- end results: NAME -->`, the prose
+around them written by hand; its figures per object go to a page of their own beside it
+(`docs/results/NAME.md`), written whole. The tables hold no wall times, so the same manifest
+on the same commit gives the same tables (every random choice of a campaign derives from its
+seed).
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ from lrnbv_drake.experiments.campaign.summary import (
     REFERENCE_PLANNER,
     auc_budgets,
     episode_row,
-    pooled_section,
+    pooled_table,
+    pooled_tests,
 )
 
 #: The manifests the page cites.
@@ -163,21 +166,51 @@ def tests_table(config: CampaignConfig, rows: Sequence[dict[str, Any]]) -> list[
     return ["", *lines]
 
 
-def campaign_tables(manifest: Manifest, config: CampaignConfig,
-                    records: Sequence[dict[str, Any]], commit: str) -> str:
-    """The block the page holds for `manifest`: how to regenerate it, the pooled figures and
-    U tests, and the per-object table."""
+def _regenerate(manifest: Manifest, rows: Sequence[dict[str, Any]], commit: str) -> str:
+    failed = sum(r["status"] != "ok" for r in rows)
+    return (f"Regenerate: `.venv/bin/lrnbv results {manifest.name}` "
+            f"(benchmarks/campaigns/{manifest.name}.yaml: `{manifest.command}`); at {commit}, "
+            f"{len(rows)} episodes, {failed} failed.")
+
+
+def _rows(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     budgets = auc_budgets(records)
-    rows = [episode_row(r, budgets.get(r["campaign"]["object"])) for r in records]
+    return [episode_row(r, budgets.get(r["campaign"]["object"])) for r in records]
+
+
+def campaign_block(manifest: Manifest, config: CampaignConfig,
+                   records: Sequence[dict[str, Any]], commit: str) -> str:
+    """The block the results page holds for `manifest`: how to regenerate it, the pooled
+    figures, the pooled U tests on one line, and a link to its page per object
+    (`detail_page`, at `detail_path`)."""
+    rows = _rows(records)
     ok = [r for r in rows if r["status"] == "ok"]
-    lines = [f"Regenerate: `.venv/bin/lrnbv results {manifest.name}` "
-             f"(benchmarks/campaigns/{manifest.name}.yaml: `{manifest.command}`); at {commit}, "
-             f"{len(rows)} episodes, {len(rows) - len(ok)} failed.", ""]
-    pooled = pooled_section(config, ok)
-    lines += pooled[pooled.index("") + 1:]  # its heading is the page's
-    while lines[-1] == "":
-        lines.pop()
-    lines += ["", *objects_table(config, rows), *tests_table(config, rows)]
+    lines = [f"{_regenerate(manifest, rows, commit)} Per object: "
+             f"[results/{manifest.name}.md](results/{manifest.name}.md).", "",
+             *pooled_table(config, ok)]
+    tests = pooled_tests(config, ok)
+    if tests:
+        lines.append(f"Pooled U tests of {planner_label(REFERENCE_PLANNER)}: " + "; ".join(
+            f"{metric} p {p} (U {u}, n {n})" for metric, u, p, n in tests) + ".")
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def detail_path(page: Path, manifest: Manifest) -> Path:
+    """Where `manifest`'s page per object is written, beside the results page."""
+    return Path(page).parent / "results" / f"{manifest.name}.md"
+
+
+def detail_page(manifest: Manifest, config: CampaignConfig, records: Sequence[dict[str, Any]],
+                commit: str) -> str:
+    """`manifest`'s page per object, written whole by `lrnbv results`: each object's errors
+    and poses per planner and trial, and the per-object U tests."""
+    rows = _rows(records)
+    lines = [f"# {manifest.title}: per object", "",
+             "Written by `lrnbv results`; the pooled figures and what they mean: "
+             "[docs/results.md](../results.md).", "", _regenerate(manifest, rows, commit), "",
+             "Worst error: an episode's largest of its L, W and H errors, one per trial; "
+             "L, W, H: each dimension's median error over the trials; poses: one per trial.",
+             "", *objects_table(config, rows), *tests_table(config, rows)]
     return "\n".join(lines).rstrip() + "\n"
 
 

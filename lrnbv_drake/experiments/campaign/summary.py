@@ -307,14 +307,24 @@ def _share(rows: Sequence[dict[str, Any]], column: str) -> str:
 
 
 def pooled_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
-    """Each planner over every object and trial: the worst-dimension error's median, 95th
-    percentile and maximum, the shares of the truth inside the interval, of misfits flagged
-    and of containers that fit and are the right size, the poses; and the U test of the
-    worst error and of the poses against the reference planner, pooled."""
+    """The summary's section over every object: `pooled_table` and `pooled_tests`."""
     lines = ["## Over every object", "",
              "Each planner's finished episodes pooled over objects and trials. The worst error "
              "is an episode's largest of its L, W and H errors; the interval's share is over "
-             "(episode, dimension) pairs; a share is a mean of 1 (yes) and 0 (no).", ""]
+             "(episode, dimension) pairs; a share is a mean of 1 (yes) and 0 (no).", "",
+             *pooled_table(config, ok)]
+    tests = pooled_tests(config, ok)
+    if tests:
+        lines += [f"Two-sided U tests of {planner_label(REFERENCE_PLANNER)} against each other "
+                  "planner, pooled (U as below).", "",
+                  *_table(["metric", "U", "p", "n"], tests)]
+    return lines
+
+
+def pooled_table(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
+    """Each planner over every object and trial: the worst-dimension error's median, 95th
+    percentile and maximum, the shares of the truth inside the interval, of misfits flagged
+    and of containers that fit and are the right size, the poses."""
     body = []
     for planner in config.planners:
         rows = [r for r in ok if r["planner"] == planner]
@@ -325,23 +335,26 @@ def pooled_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list
                      *(_share(rows, c) for c in ("truth_in_interval", "misfit_flag", "fits",
                                                  "right_size")),
                      _cell(summarize(r["n_poses"] for r in rows))])
-    lines += _table(["planner", "worst error median (mm)", "p95 (mm)", "max (mm)",
-                     "truth in interval", "misfit flagged", "fits", "right size", "poses"],
-                    body)
+    return _table(["planner", "worst error median (mm)", "p95 (mm)", "max (mm)",
+                   "truth in interval", "misfit flagged", "fits", "right size", "poses"], body)
+
+
+def pooled_tests(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[list[str]]:
+    """The U test of the worst error and of the poses of the reference planner against each
+    other planner, pooled over objects: rows of (metric, U, p with * where significant,
+    n); none without a reference and another planner."""
     ref, others = REFERENCE_PLANNER, [p for p in config.planners if p != REFERENCE_PLANNER]
-    if ref in config.planners and others:
-        body = []
-        for other in others:
-            for column, label in (("worst_err", "worst error"), ("n_poses", "poses")):
-                t = mann_whitney((r[column] for r in ok if r["planner"] == ref),
-                                 (r[column] for r in ok if r["planner"] == other))
-                body.append([f"{label}, vs {planner_label(other)}", _fmt(t.u),
-                             _fmt(t.p, snap=False) + (" *" if t.significant else ""),
-                             f"{t.n_a} / {t.n_b}"])
-        lines += [f"Two-sided U tests of {planner_label(ref)} against each other planner, "
-                  "pooled (U as below).", "",
-                  *_table(["metric", "U", "p", "n"], body)]
-    return lines
+    if ref not in config.planners:
+        return []
+    body = []
+    for other in others:
+        for column, label in (("worst_err", "worst error"), ("n_poses", "poses")):
+            t = mann_whitney((r[column] for r in ok if r["planner"] == ref),
+                             (r[column] for r in ok if r["planner"] == other))
+            body.append([f"{label}, vs {planner_label(other)}", _fmt(t.u),
+                         _fmt(t.p, snap=False) + (" *" if t.significant else ""),
+                         f"{t.n_a} / {t.n_b}"])
+    return body
 
 
 def _comparison_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
