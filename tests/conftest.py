@@ -6,6 +6,19 @@ import pytest
 
 os.environ["DRAKE_ALLOW_NETWORK"] = "meshcat"
 os.environ.setdefault("MPLBACKEND", "Agg")
+# `make test` runs two pytest-xdist workers on CI's two cores: each takes its share of the
+# cores for numba's and BLAS's threads, which would otherwise spin against each other.
+WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+if WORKERS > 1:
+    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, str(max(1, (os.cpu_count() or 1) // WORKERS)))
+
+
+def pytest_configure(config):
+    if WORKERS > 1:
+        import numba
+
+        numba.set_num_threads(max(1, numba.config.NUMBA_NUM_THREADS // WORKERS))
 
 
 @pytest.fixture(scope="session")
