@@ -47,8 +47,8 @@ def test_lrnbv_on_the_horizontal_box_ends_when_the_box_holds_still_in_few_poses(
     assert (report["metrics"]["dim_errors_after_each_pose_mm"][-1]
             == pytest.approx(report["metrics"]["dim_errors_mm"], abs=0.01))
     assert report["n_poses"] < Scenario().max_poses
-    # The first frame is the initial acquisition; every later pose came from a plan.
-    assert report["poses"][0]["info"] == {}
+    # The first frame is the drop zone's view; every later pose came from a plan.
+    assert report["poses"][0]["info"] == {"first_view": "drop_zone", "candidate_rank": 0}
     assert all("utility" in p["info"] for p in report["poses"][1:])
     curve = report["metrics"]["coverage_curve"]["0.01"]
     assert len(curve) == report["n_poses"]

@@ -120,13 +120,16 @@ def test_the_paper_preset_sets_the_papers_estimator_stop_utility_and_search_and_
     paper, product = preset("paper"), preset(None)
     assert (paper.extraction.estimator, paper.planner.stop.rule,
             paper.planner.travel_discount, paper.planner.search_upper[2],
-            paper.planner.lead_points) == ("cells", "paper", 0.0, 0.3, 0)
+            paper.planner.lead_points, paper.planner.first_view) == ("cells", "paper", 0.0,
+                                                                     0.3, 0, "home")
     assert (product.extraction.estimator, product.planner.stop.rule,
             product.planner.travel_discount, product.planner.search_upper[2],
-            product.planner.lead_points) == ("shape", "box", 0.0, 0.08, 3)
+            product.planner.lead_points, product.planner.first_view) == ("shape", "box", 0.0,
+                                                                         0.08, 3, "drop_zone")
     paper.extraction.estimator, paper.planner.stop.rule = "shape", "box"
     paper.planner.search_upper = product.planner.search_upper
     paper.planner.lead_points = product.planner.lead_points
+    paper.planner.first_view = product.planner.first_view
     assert yaml_dump_typed(paper) == yaml_dump_typed(product)
     with pytest.raises(ScenarioError, match="unknown preset 'papers'"):
         preset("papers")

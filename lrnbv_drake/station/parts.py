@@ -24,6 +24,7 @@ from lrnbv_drake.core.evaluation.packing import (
     load_catalogue,
 )
 from lrnbv_drake.core.mapping.extraction import ExtractionParams
+from lrnbv_drake.core.planning.first_view import drop_zone_view
 from lrnbv_drake.core.planning.heu import HeuPolicy
 from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
@@ -183,12 +184,16 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
         # The object's true centre is given to the HEU baseline only, as in the paper.
         return HeuPolicy(placed.mesh.bounds.mean(axis=0), scenario.heu)
     if planner in ("lrnbv", "nbv"):
+        geometry, cell = zone_geometry(scenario), scenario.cell
+        first = None if scenario.planner.first_view == "home" else drop_zone_view(
+            cell.drop_zone, cell.table_height, geometry,
+            cell.max_item_height + scenario.planner.tree.roi_clearance)
         return LrNbvPolicy(
-            scenario.planner, zone_geometry(scenario),
+            scenario.planner, geometry,
             workspace=AlignedBox(*(np.asarray(v, float) for v in motion.workspace)),
             ik=motion.ik_batch, collision_free=motion.collision_free,
-            table_height=scenario.cell.table_height, seed=scenario.seed, variant=planner,
-            travel_time=motion.travel_time)
+            table_height=cell.table_height, seed=scenario.seed, variant=planner,
+            travel_time=motion.travel_time, first_view=first)
     raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
 
 

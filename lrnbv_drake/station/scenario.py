@@ -77,6 +77,13 @@ class CellConfig:
     # Axis-aligned box (world frame, metres) the sensor origin must stay in.
     workspace_lower: list[float] = dc.field(default_factory=lambda: [0.0, -0.6, 0.05])
     workspace_upper: list[float] = dc.field(default_factory=lambda: [1.0, 0.6, 1.0])
+    # Where items are put on the table (by the conveyor or the operator), [x_min, y_min,
+    # x_max, y_max], metres: the product's first view frames it (`planner.first_view`). The
+    # default is where the campaigns place objects' centres.
+    drop_zone: list[float] = dc.field(default_factory=lambda: [0.42, -0.12, 0.58, 0.12])
+    # The tallest item the cell takes, metres: the first view is taken above it plus
+    # `planner.tree.roi_clearance`, as the item is not known yet.
+    max_item_height: float = 0.35
 
 
 @dc.dataclass
@@ -336,11 +343,13 @@ def _from_yaml(text: str) -> "Scenario":
 #: Named starting points for a scenario (`--preset NAME`): "paper" is the paper's
 #: configuration where the product's defaults differ from it (docs/results.md measures both;
 #: docs/decisions/0002 says why they differ):
-#: the box around the occupied map cells, Algorithm 1's line 24 as the only stop, and the
-#: whole workspace's height searched before the object is found (not where a few cells stand).
+#: the box around the occupied map cells, Algorithm 1's line 24 as the only stop, the
+#: whole workspace's height searched before the object is found (not where a few cells stand)
+#: and the first frame taken at the start pose, not over the drop zone.
 PRESETS: dict[str, str] = {
     "paper": ("{extraction: {estimator: cells}, planner: {stop: {rule: paper}, "
-              "travel_discount: 0.0, search_upper: [0.75, 0.3, 0.3], lead_points: 0}}"),
+              "travel_discount: 0.0, search_upper: [0.75, 0.3, 0.3], lead_points: 0, "
+              "first_view: home}}"),
 }
 
 

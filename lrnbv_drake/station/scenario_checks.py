@@ -78,6 +78,9 @@ def _one_of(*choices: str) -> tuple[Callable[[Any], bool], str]:
 
 
 _FRACTION = _number(lambda v: 0 < v <= 1, "a fraction in (0, 1]")
+_RECTANGLE = ((lambda v: len(v) == 4 and all(math.isfinite(x) for x in v)
+               and v[0] < v[2] and v[1] < v[3]),
+              "[x_min, y_min, x_max, y_max], finite, each min below its max")
 _FINITE = _number(lambda v: True, "a finite number")
 
 RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
@@ -90,9 +93,9 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("robot.collision_padding", _at_least(0)),
     ("cell.table_height", _FINITE),
     ("cell.table_reflectance", _FRACTION),
-    ("cell.table_extent", ((lambda v: len(v) == 4 and all(math.isfinite(x) for x in v)
-                            and v[0] < v[2] and v[1] < v[3]),
-                           "[x_min, y_min, x_max, y_max], finite, each min below its max")),
+    ("cell.table_extent", _RECTANGLE),
+    ("cell.drop_zone", _RECTANGLE),
+    ("cell.max_item_height", _above(0)),
     ("cell.workspace_lower", _vector(3)),
     ("cell.workspace_upper", _vector(3)),
     ("object.scale", _above(0)),
@@ -185,6 +188,7 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("robot.self_filter_padding", _at_least(0)),
     ("robot.sensor_roll_step_deg", _number(lambda v: v in ROLL_STEPS_DEG, ROLL_STEPS_TEXT)),
     ("planner.stop.rule", _one_of("paper", "box")),
+    ("planner.first_view", _one_of("drop_zone", "home")),
     ("planner.stop.tolerance", _above(0)),
     ("planner.stop.stable_poses", _at_least(1)),
     ("planner.stop.min_poses", _at_least(1)),

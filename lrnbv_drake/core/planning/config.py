@@ -96,6 +96,10 @@ class PlannerParams:
     lead_points: int = 3
     lead_margin: float = 0.05
     stop: StopParams = dc.field(default_factory=StopParams)
+    # The first frame: "drop_zone" (the product's), straight down over `cell.drop_zone`, the
+    # whole zone in view (core/planning/first_view.py); "home" (the paper's), at the start
+    # pose before the first proposal.
+    first_view: str = "drop_zone"
     # lambda, 1/s: a view's positive utility is multiplied by exp(-lambda t), t the time the
     # arm takes to reach it from where it is (the receding-horizon NBV planners' discount).
     # 0 (the paper's: utilities as they are) is the default: accuracy before cycle time

@@ -70,13 +70,14 @@ class LrNbvPolicy(ViewpointPolicy):
         variant: "lrnbv" or "nbv" (Gd and Gv weights set to zero).
         travel_time: seconds the arm takes from joints q to each of configurations Q (n, 6),
             `travel_time(q, Q)`; needed with `params.travel_discount` > 0.
+        first_view: the first frame's sensor pose (4x4 X_WS, the drop zone's view), proposed
+            before any frame is taken; None: the first frame is taken at the start pose.
     """
-
-    capture_initial = True
 
     def __init__(self, params: PlannerParams, geometry: ZoneGeometry, workspace: AlignedBox,
                  ik, collision_free, table_height: float = 0.0, seed: int = 0,
-                 variant: str = "lrnbv", travel_time=None):
+                 variant: str = "lrnbv", travel_time=None,
+                 first_view: np.ndarray | None = None):
         if variant not in ("lrnbv", "nbv"):
             raise ValueError(f"unknown variant '{variant}': expected 'lrnbv' or 'nbv'")
         if params.travel_discount < 0 or (params.travel_discount > 0 and travel_time is None):
@@ -87,6 +88,8 @@ class LrNbvPolicy(ViewpointPolicy):
             weights = dc.replace(weights, density=0.0, visited=0.0)
         self.name = variant
         self.params = params
+        self.first_view = None if first_view is None else np.asarray(first_view, float)
+        self.capture_initial = first_view is None
         self.utility = UtilityFunction(weights, params.gains.normalize)
         self.rays = sensor_rays(geometry, params.gains.rays_per_zone)
         self.workspace = workspace
@@ -100,6 +103,7 @@ class LrNbvPolicy(ViewpointPolicy):
         self.iteration = 0
         self.cache: list[_Cached] = []
         self._marked = 0
+        self._first_view_proposed = False
         # The last iteration's tree (for inspection; Proposal.debug carries what is drawn).
         self.last_tree: ViewTree | None = None
 
@@ -217,6 +221,8 @@ class LrNbvPolicy(ViewpointPolicy):
             self._marked = observation.n_acquisitions
         if self.iteration >= self.params.num_iterations:
             return Proposal(done=True, reason=f"reached {self.params.num_iterations} iterations")
+        if self.first_view is not None and observation.n_acquisitions == 0:
+            return self._propose_first_view()
 
         q = self._q = np.asarray(observation.q, float)
         reach = Reach(lambda poses: self.ik(poses, q), self.collision_free)
@@ -311,8 +317,22 @@ class LrNbvPolicy(ViewpointPolicy):
                         candidate_info=[{"node_utility": float(utilities[i - 1])}
                                         for i in order])
 
+    def _propose_first_view(self) -> Proposal:
+        """The drop zone's view, once: if the arm cannot reach it, the episode ends saying
+        so (a tree needs a frame to grow from)."""
+        if self._first_view_proposed:
+            at = np.round(self.first_view[:3, 3], 3).tolist()
+            return Proposal(done=True, reason=(
+                f"the drop zone's first view (sensor at {at} m, looking down) is out of the "
+                "arm's reach: move cell.drop_zone, lower cell.max_item_height or set "
+                "planner.first_view: home"))
+        self._first_view_proposed = True
+        return Proposal(candidates=[self.first_view], info={"first_view": "drop_zone"})
+
     def accepted(self, index: int, observation: Observation) -> None:
-        self.iteration += 1
+        # The drop zone's view is the first frame, as the start pose's is: no iteration.
+        if self.first_view is None or observation.n_acquisitions > 0:
+            self.iteration += 1
 
     def restore(self, acquisitions: Sequence[Recorded]) -> None:
         """The iteration count (one per acquisition a proposal led to) and the visited cells
