@@ -299,6 +299,7 @@ class AcquisitionSequencer:
                 s.log.policy_seconds.append(time.perf_counter() - started)
                 self._finish(s, reason)
                 return
+            observation = dc.replace(observation, estimate=track.latest)
         proposal = self.policy.propose(observation)
         s.log.policy_seconds.append(time.perf_counter() - started)
         if proposal.done:

@@ -193,8 +193,15 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
             workspace=AlignedBox(*(np.asarray(v, float) for v in motion.workspace)),
             ik=motion.ik_batch, collision_free=motion.collision_free,
             table_height=cell.table_height, seed=scenario.seed, variant=planner,
-            travel_time=motion.travel_time, first_view=first)
+            travel_time=motion.travel_time, first_view=first,
+            capture_seconds=capture_seconds(scenario))
     raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
+
+
+def capture_seconds(scenario: Scenario) -> float:
+    """What the cell waits at a view, by the acquisition loop's timing: the frames discarded
+    once the arm stops, the frame used, and the map's 1.5 periods to take it in."""
+    return (scenario.sensor.settle_frames + 2.5) * scenario.sensor.period
 
 
 def make_self_filter(scenario: Scenario, motion: MotionPlanner) -> SelfFilter | None:

@@ -11,12 +11,14 @@ import math
 
 @dc.dataclass
 class UtilityWeights:
-    """Weights of the four gains (Table 1)."""
+    """Weights of the four gains (Table 1), and of the box gain (not the paper's: 0 in
+    `utility: paper`)."""
 
     exploration: float = 500.0
     density: float = 0.05
     quality: float = 0.08
     visited: float = 500.0
+    box: float = 0.0
 
 
 @dc.dataclass
@@ -96,6 +98,12 @@ class PlannerParams:
     lead_points: int = 3
     lead_margin: float = 0.05
     stop: StopParams = dc.field(default_factory=StopParams)
+    # What a view is worth: "paper", U = we Ge + wd Gd + wq Gq + wv Gv (`weights`, Table 1);
+    # "box", (Gb + `box_exploration` Ge) over the seconds to reach the view and take its
+    # frame, each gain over its running maximum, plus Gv (core/planning/box_gain.py).
+    utility: str = "paper"
+    # The box utility's weight of the exploration gain, which finds parts not yet seen.
+    box_exploration: float = 0.5
     # The first frame: "drop_zone" (the product's), straight down over `cell.drop_zone`, the
     # whole zone in view (core/planning/first_view.py); "home" (the paper's), at the start
     # pose before the first proposal.

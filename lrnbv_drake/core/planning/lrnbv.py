@@ -25,7 +25,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from lrnbv_drake.core.boxes import AlignedBox
-from lrnbv_drake.core.planning.config import PlannerParams
+from lrnbv_drake.core.planning.box_gain import SideBands
+from lrnbv_drake.core.planning.config import PlannerParams, UtilityWeights
 from lrnbv_drake.core.planning.policy import Observation, Proposal, Recorded, ViewpointPolicy
 from lrnbv_drake.core.planning.rrt import Reach, ViewTree, expand_tree
 from lrnbv_drake.core.planning.utility import (
@@ -72,20 +73,29 @@ class LrNbvPolicy(ViewpointPolicy):
             `travel_time(q, Q)`; needed with `params.travel_discount` > 0.
         first_view: the first frame's sensor pose (4x4 X_WS, the drop zone's view), proposed
             before any frame is taken; None: the first frame is taken at the start pose.
+        capture_seconds: what a pose costs besides the motion (settling, the frame, the map),
+            which the box utility adds to the travel time it divides by.
     """
 
     def __init__(self, params: PlannerParams, geometry: ZoneGeometry, workspace: AlignedBox,
                  ik, collision_free, table_height: float = 0.0, seed: int = 0,
                  variant: str = "lrnbv", travel_time=None,
-                 first_view: np.ndarray | None = None):
+                 first_view: np.ndarray | None = None, capture_seconds: float = 0.0):
         if variant not in ("lrnbv", "nbv"):
             raise ValueError(f"unknown variant '{variant}': expected 'lrnbv' or 'nbv'")
         if params.travel_discount < 0 or (params.travel_discount > 0 and travel_time is None):
             raise ValueError(f"travel_discount {params.travel_discount} needs to be >= 0, and "
                              f"a travel_time function when > 0")
+        if params.utility == "box" and (travel_time is None or not capture_seconds > 0):
+            raise ValueError("utility 'box' needs a travel_time function and capture_seconds "
+                             f"> 0; got capture_seconds {capture_seconds}")
         weights = params.weights
-        if variant == "nbv":
+        if params.utility == "box":
+            weights = UtilityWeights(exploration=params.box_exploration, density=0.0,
+                                     quality=0.0, visited=0.0, box=1.0)
+        elif variant == "nbv":
             weights = dc.replace(weights, density=0.0, visited=0.0)
+        self.capture_seconds = capture_seconds
         self.name = variant
         self.params = params
         self.first_view = None if first_view is None else np.asarray(first_view, float)
@@ -110,15 +120,29 @@ class LrNbvPolicy(ViewpointPolicy):
     # -- the steps of `propose`, each tested alone --------------------------------------
 
     def utilities(self, gains: Gains, configs: Sequence[np.ndarray]) -> np.ndarray:
-        """The views' utilities, positive ones discounted by exp(-lambda t) for the time t
-        the arm takes to reach their configurations from where it is."""
+        """The views' utilities: the box utility over the seconds a view costs (the arm's
+        travel to its configuration from where it is, and `capture_seconds`), less 1 where
+        its position's cell was visited (Gv: a view again where one was taken bounds little
+        more); positive ones discounted by exp(-lambda t) for the travel time t."""
         utilities = self.utility(gains)
-        if self.params.travel_discount > 0 and len(configs):
+        box = self.params.utility == "box"
+        if (box or self.params.travel_discount > 0) and len(configs):
             t = self.travel_time(self._q, np.array(configs))
-            utilities = np.where(utilities > 0,
-                                 utilities * np.exp(-self.params.travel_discount * t),
-                                 utilities)
+            if box:  # a visited cell's view loses 1, whatever its time
+                utilities = utilities / (t + self.capture_seconds) + gains.visited
+            if self.params.travel_discount > 0:
+                utilities = np.where(utilities > 0,
+                                     utilities * np.exp(-self.params.travel_discount * t),
+                                     utilities)
         return utilities
+
+    def bands(self, estimate) -> SideBands | None:
+        """The side bands of `estimate` (a `BoxEstimate`) for the box gain; None for the
+        paper's utility or an estimate without an interval."""
+        if self.utility.weights.box == 0 or estimate is None or estimate.interval is None:
+            return None
+        return SideBands.of(estimate.box, estimate.dims_lower, estimate.dims_upper,
+                            self.table_height)
 
     def _scorer(self, snapshot: PlanningSnapshot):
         def score(poses: np.ndarray) -> tuple[Gains, np.ndarray]:
@@ -228,7 +252,8 @@ class LrNbvPolicy(ViewpointPolicy):
         reach = Reach(lambda poses: self.ik(poses, q), self.collision_free)
         roi, object_points, center = self.roi(observation.extraction)
         snapshot = make_snapshot(observation.occupancy, roi, object_points, center,
-                                 self.params.gains.density_radius)
+                                 self.params.gains.density_radius,
+                                 self.bands(observation.estimate))
         reevaluation_s = self.update_cache(snapshot)
         cached_before = list(self.cache)
         cached_gains = Gains.concatenate([c.gains for c in cached_before])
@@ -301,7 +326,8 @@ class LrNbvPolicy(ViewpointPolicy):
                 f"{worst_cached:.4g} (Algorithm 1, line 24)"))
         g = tree.gains[best]
         info["gains"] = {"exploration": float(g.exploration[0]), "density": float(g.density[0]),
-                         "quality": float(g.quality[0]), "visited": float(g.visited[0])}
+                         "quality": float(g.quality[0]), "visited": float(g.visited[0]),
+                         "box": float(g.box[0])}
         # The best node first; then the rest of the tree by utility, in case the motion to the
         # best one fails.
         order = [best] + [int(i) + 1 for i in np.argsort(-utilities, kind="stable")

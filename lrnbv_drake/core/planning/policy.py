@@ -33,6 +33,7 @@ class Observation:
         occupancy: the occupancy map (an `OccupancyMap`), or None before the first capture.
         extraction: the latest object extraction (`ExtractionResult`), or None.
         n_acquisitions: frames captured so far.
+        estimate: the reported estimate after the last frame (a `BoxEstimate`), or None.
     """
 
     time: float
@@ -41,6 +42,7 @@ class Observation:
     occupancy: Any = None
     extraction: Any = None
     n_acquisitions: int = 0
+    estimate: Any = None
 
 
 @dc.dataclass

@@ -13,6 +13,8 @@ Gains (paper, Section "Utility Function"; docs/algorithm.md maps every symbol he
 - Gd: sum over valid samples of 1 / (1 + rho), rho the object points within r_d of the sample.
 - Gq: 1 / (1 + |x_T - x_object|).
 - Gv: -1 if the sensor position's cell of the coarse visited grid was visited, else 0.
+- Gb (not the paper's, `planner.utility: box`): the width of the estimate's side bands the
+  view's rays cross (core/planning/box_gain.py).
 
 The map state inside the ROI is copied once per planning step into a small dense snapshot
 (`PlanningSnapshot`), so the kernel walks plain arrays and never touches the map.
@@ -30,6 +32,7 @@ from scipy import ndimage
 
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.mapping import ray_box_interval, walk_start, walk_step
+from lrnbv_drake.core.planning.box_gain import SideBands, box_gains
 from lrnbv_drake.core.planning.config import GainParams, UtilityWeights
 from lrnbv_drake.core.sensing.sensor import ZoneGeometry
 
@@ -48,6 +51,8 @@ class PlanningSnapshot:
         state: (nx, ny, nz) int8, -1 unknown, 0 free, 1 occupied.
         density: (nx, ny, nz) float32, object points within the density radius of each cell.
         object_center: x_object for the quality gain.
+        bands: where the reported estimate's sides may lie, for the box gain; None before an
+            estimate with an interval.
     """
 
     roi: AlignedBox
@@ -56,6 +61,7 @@ class PlanningSnapshot:
     state: np.ndarray
     density: np.ndarray
     object_center: np.ndarray
+    bands: SideBands | None = None
 
 
 def _sphere_kernel(radius_cells: float) -> np.ndarray:
@@ -66,7 +72,8 @@ def _sphere_kernel(radius_cells: float) -> np.ndarray:
 
 
 def make_snapshot(occupancy, roi: AlignedBox, object_points: np.ndarray,
-                  object_center: np.ndarray, density_radius: float) -> PlanningSnapshot:
+                  object_center: np.ndarray, density_radius: float,
+                  bands: SideBands | None = None) -> PlanningSnapshot:
     """Copies the map's cells inside `roi` and counts object points around each cell.
 
     Args:
@@ -75,6 +82,7 @@ def make_snapshot(occupancy, roi: AlignedBox, object_points: np.ndarray,
         object_points: (N, 3) centres of the object's cells.
         object_center: the object's estimated centre.
         density_radius: r_d of the density gain, metres.
+        bands: the estimate's side bands (`PlanningSnapshot.bands`).
     """
     res = float(occupancy.resolution)
     lo = np.floor(roi.lower / res).astype(np.int64)
@@ -94,7 +102,7 @@ def make_snapshot(occupancy, roi: AlignedBox, object_points: np.ndarray,
     density = ndimage.convolve(counts, _sphere_kernel(density_radius / res), mode="constant")
     return PlanningSnapshot(roi=roi, origin=origin, resolution=res, state=state,
                             density=density.astype(np.float32),
-                            object_center=np.asarray(object_center, float))
+                            object_center=np.asarray(object_center, float), bands=bands)
 
 
 def sensor_rays(geometry: ZoneGeometry, rays_per_zone: int = 1) -> np.ndarray:
@@ -183,16 +191,21 @@ def _ray_gains_kernel(poses, rays, max_range, roi_lo, roi_hi, origin, res, state
 
 @dc.dataclass
 class Gains:
-    """Raw gains of a batch of poses, each (P,)."""
+    """Raw gains of a batch of poses, each (P,); the box gain zero where not given."""
 
     exploration: np.ndarray
     density: np.ndarray
     quality: np.ndarray
     visited: np.ndarray
+    box: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.box is None:
+            self.box = np.zeros(len(self.exploration))
 
     def _fields(self) -> tuple[np.ndarray, ...]:
         # Not dataclasses.astuple, which deep-copies every array.
-        return self.exploration, self.density, self.quality, self.visited
+        return self.exploration, self.density, self.quality, self.visited, self.box
 
     def take(self, index) -> Gains:
         """The gains of a subset of the poses."""
@@ -201,7 +214,7 @@ class Gains:
     @staticmethod
     def concatenate(parts: list[Gains]) -> Gains:
         if not parts:
-            return Gains(*(np.zeros(0) for _ in range(4)))
+            return Gains(*(np.zeros(0) for _ in range(5)))
         return Gains(*(np.concatenate(g) for g in zip(*(p._fields() for p in parts),
                                                        strict=True)))
 
@@ -246,13 +259,16 @@ class VisitedGrid:
 
 def evaluate_gains(poses: np.ndarray, snapshot: PlanningSnapshot, rays: np.ndarray,
                    visited: VisitedGrid, params: GainParams) -> Gains:
-    """The four raw gains for each pose (P, 4, 4)."""
+    """The raw gains for each pose (P, 4, 4): the paper's four, and the box gain where the
+    snapshot has the estimate's bands."""
     poses = np.asarray(poses, float).reshape(-1, 4, 4)
     ge, gd = ray_gains(poses, snapshot, rays, params.max_range)
     distance = np.linalg.norm(poses[:, :3, 3] - snapshot.object_center, axis=1)
     gq = 1.0 / (1.0 + distance)
     gv = -visited.visited(poses[:, :3, 3]).astype(float)
-    return Gains(exploration=ge, density=gd, quality=gq, visited=gv)
+    gb = (None if snapshot.bands is None
+          else box_gains(poses, snapshot.bands, rays, params.max_range))
+    return Gains(exploration=ge, density=gd, quality=gq, visited=gv, box=gb)
 
 
 class UtilityFunction:
@@ -265,18 +281,19 @@ class UtilityFunction:
     def __init__(self, weights: UtilityWeights, normalize: bool = True):
         self.weights = weights
         self.normalize = normalize
-        self._max = np.full(3, 1e-12)
+        self._max = np.full(4, 1e-12)
 
     def observe(self, gains: Gains) -> None:
         """Raises the running maxima with newly evaluated gains."""
         if len(gains.exploration):
             self._max = np.maximum(self._max, [gains.exploration.max(), gains.density.max(),
-                                               gains.quality.max()])
+                                               gains.quality.max(), gains.box.max()])
 
     def __call__(self, gains: Gains) -> np.ndarray:
         w = self.weights
-        scale = self._max if self.normalize else np.ones(3)
+        scale = self._max if self.normalize else np.ones(4)
         return (w.exploration * gains.exploration / scale[0]
                 + w.density * gains.density / scale[1]
                 + w.quality * gains.quality / scale[2]
-                + w.visited * gains.visited)
+                + w.visited * gains.visited
+                + w.box * gains.box / scale[3])
