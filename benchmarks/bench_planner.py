@@ -23,6 +23,8 @@ import time
 
 import numpy as np
 
+from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.planning.box_gain import SideBands, box_gains
 from lrnbv_drake.core.planning.lrnbv import LrNbvPolicy
 from lrnbv_drake.core.planning.rrt import aim_points, orient
 from lrnbv_drake.core.planning.utility import (
@@ -79,8 +81,10 @@ def _ms(values: np.ndarray) -> str:
             f"p95 {np.percentile(values, 95) * 1e3:.1f} ms")
 
 
-def _utility_evaluation(repeats: int = 20) -> tuple[np.ndarray, int]:
-    """Seconds to score one tree's worth of views (50 positions x 5 aims) on a real map."""
+def _utility_evaluation(repeats: int = 20) -> tuple[np.ndarray, np.ndarray, int]:
+    """Seconds to score one tree's worth of views (50 positions x 5 aims) on a real map: the
+    paper's gains, and the box gain (`planner.utility: box`) on the episode's reported
+    estimate and interval."""
     scenario = Scenario(seed=0)
     with tempfile.TemporaryDirectory() as out:
         result = run_episode(scenario, "lrnbv", out)
@@ -97,13 +101,22 @@ def _utility_evaluation(repeats: int = 20) -> tuple[np.ndarray, int]:
     poses = orient(positions, aim_points(extraction.roi, 0.25)).reshape(-1, 4, 4)
     rays = sensor_rays(zone_geometry(scenario))
     visited = VisitedGrid()
+    estimate = result.report["estimated_box"]
+    bands = SideBands.of(OrientedBox(estimate["center"], estimate["dims"], estimate["yaw"]),
+                         estimate["dims_lower"], estimate["dims_upper"],
+                         scenario.cell.table_height)
+    max_range = scenario.planner.gains.max_range
     evaluate_gains(poses, snapshot, rays, visited, scenario.planner.gains)
-    times = []
+    box_gains(poses, bands, rays, max_range)
+    times, box_times = [], []
     for _ in range(repeats):
         started = time.perf_counter()
         evaluate_gains(poses, snapshot, rays, visited, scenario.planner.gains)
         times.append(time.perf_counter() - started)
-    return np.array(times), len(poses)
+        started = time.perf_counter()
+        box_gains(poses, bands, rays, max_range)
+        box_times.append(time.perf_counter() - started)
+    return np.array(times), np.array(box_times), len(poses)
 
 
 def main() -> int:
@@ -115,10 +128,12 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as out:
         run_episode(Scenario(seed=100), "lrnbv", out)  # warm-up: numba caches, VTK pipeline
     run = _episodes(args.seeds)
-    evaluation, n_poses = _utility_evaluation()
+    evaluation, box, n_poses = _utility_evaluation()
     e = np.median(evaluation)
     print(f"utility evaluation: {_ms(evaluation)} for {n_poses} views "
           f"({e / n_poses * 1e6:.0f} us per view, 64 rays)")
+    print(f"box gain: {_ms(box)} for the same views, {np.median(box) / e:.2f}x the paper's "
+          "gains in the same run")
     propose = run["propose"]
     median = np.median(propose)
     print(f"planning iteration (LrNbvPolicy.propose, n={len(propose)}): {_ms(propose)}; "
