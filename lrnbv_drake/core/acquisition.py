@@ -50,6 +50,15 @@ SelfFilter = Callable[[ToFFrame, np.ndarray, np.ndarray], tuple[ToFFrame, np.nda
 #: A motion starts from the last command, not from the measured joints, when no joint is
 #: further apart than this, radians (see `motion_start`).
 HOLD_TOLERANCE = 0.005
+#: Frame periods the map and the clustering are given to take in a captured frame before the
+#: next plan.
+MAP_WAIT_PERIODS = 1.5
+
+
+def seconds_at_a_view(frame_period: float, settle_frames: int) -> float:
+    """What the loop waits at a view besides computing: the frames discarded once the arm
+    stops, the frame used, and the map's `MAP_WAIT_PERIODS`."""
+    return (settle_frames + 1 + MAP_WAIT_PERIODS) * frame_period
 
 
 @dc.dataclass
@@ -273,7 +282,7 @@ class AcquisitionSequencer:
         if s.frames_left > 0:  # the view's next frame, each with the view's info
             return
         s.pending_info = {}
-        s.mode, s.t_ready = Mode.WAIT_MAP, t + 1.5 * self._period
+        s.mode, s.t_ready = Mode.WAIT_MAP, t + MAP_WAIT_PERIODS * self._period
 
     @staticmethod
     def _finish(s: AcquisitionState, reason: str) -> None:

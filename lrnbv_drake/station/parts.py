@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrnbv_drake.core.acquisition import SelfFilter
+from lrnbv_drake.core.acquisition import SelfFilter, seconds_at_a_view
 from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.calibration.commissioning import TableViews, table_view_poses
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator
@@ -194,14 +194,9 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
             ik=motion.ik_batch, collision_free=motion.collision_free,
             table_height=cell.table_height, seed=scenario.seed, variant=planner,
             travel_time=motion.travel_time, first_view=first,
-            capture_seconds=capture_seconds(scenario))
+            capture_seconds=seconds_at_a_view(scenario.sensor.period,
+                                              scenario.sensor.settle_frames))
     raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
-
-
-def capture_seconds(scenario: Scenario) -> float:
-    """What the cell waits at a view, by the acquisition loop's timing: the frames discarded
-    once the arm stops, the frame used, and the map's 1.5 periods to take it in."""
-    return (scenario.sensor.settle_frames + 2.5) * scenario.sensor.period
 
 
 def make_self_filter(scenario: Scenario, motion: MotionPlanner) -> SelfFilter | None:

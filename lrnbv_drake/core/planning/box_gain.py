@@ -29,7 +29,7 @@ class SideBands:
     its footprint's centre on the table, x along its length, z up).
 
     Args:
-        X_WB: (4, 4) the estimate's frame in the world.
+        X_BW: (4, 4) the world in the estimate's frame.
         lower: (5, 3) each band's lower corner: +x, -x, +y, -y walls, then the top.
         upper: (5, 3) each band's upper corner.
         widths: (5,) each band's width across its side, metres.
@@ -37,7 +37,7 @@ class SideBands:
             the interval's lower dimensions), which hides what lies behind it.
     """
 
-    X_WB: np.ndarray
+    X_BW: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
     widths: np.ndarray
@@ -52,10 +52,10 @@ class SideBands:
         lo = np.minimum(np.asarray(dims_lower, float), box.dims)
         hi = np.maximum(np.asarray(dims_upper, float), box.dims)
         (ll, wl, hl), (lu, wu, hu) = lo, hi
-        X = np.eye(4)
+        X_BW = np.eye(4)
         c, s = math.cos(box.yaw), math.sin(box.yaw)
-        X[:2, :2] = [[c, -s], [s, c]]
-        X[:3, 3] = [box.center[0], box.center[1], table_height]
+        X_BW[:2, :2] = [[c, s], [-s, c]]
+        X_BW[:3, 3] = -X_BW[:3, :3] @ [box.center[0], box.center[1], table_height]
         lower = np.array([[ll / 2, -wu / 2, 0.0], [-lu / 2, -wu / 2, 0.0],
                           [-lu / 2, wl / 2, 0.0], [-lu / 2, -wu / 2, 0.0],
                           [-lu / 2, -wu / 2, hl]])
@@ -64,7 +64,7 @@ class SideBands:
                           [lu / 2, wu / 2, hu]])
         widths = np.array([(lu - ll) / 2] * 2 + [(wu - wl) / 2] * 2 + [hu - hl])
         inner = np.array([[-ll / 2, -wl / 2, 0.0], [ll / 2, wl / 2, hl]])
-        return SideBands(X, lower, upper, widths, inner)
+        return SideBands(X_BW, lower, upper, widths, inner)
 
 
 @numba.njit(cache=True)
@@ -95,7 +95,7 @@ def box_gains(poses: np.ndarray, bands: SideBands, rays: np.ndarray,
     """(P,) the box gain of each sensor pose (P, 4, 4) whose zone rays (R, 3, unit vectors
     in the sensor frame) reach `max_range`."""
     poses = np.asarray(poses, float).reshape(-1, 4, 4)
-    poses_B = np.ascontiguousarray(np.linalg.inv(bands.X_WB) @ poses)
+    poses_B = np.ascontiguousarray(bands.X_BW @ poses)
     out = np.zeros(len(poses))
     _box_gain_kernel(poses_B, np.ascontiguousarray(rays, float), float(max_range),
                      bands.lower, bands.upper, bands.widths, bands.inner, out)
