@@ -44,7 +44,7 @@ from lrnbv_drake.experiments.campaign.plan import (
 )
 from lrnbv_drake.experiments.campaign.run import run_campaign
 from lrnbv_drake.experiments.campaign.summary import coverage_curves, episode_row
-from lrnbv_drake.experiments.episode import PLANNERS
+from lrnbv_drake.experiments.episode import SIMULATION_PLANNERS
 from lrnbv_drake.experiments.report import rounded
 
 TRUE_DIMS = {"horizontal_box": (0.30, 0.20, 0.12), "vertical_box": (0.12, 0.10, 0.25)}
@@ -461,7 +461,7 @@ def test_resume_extends_a_campaign_and_refuses_other_settings(tmp_path):
 
 def test_command_line_defaults_and_errors(tmp_path, capsys):
     args = _parse(["--out", str(tmp_path)])
-    assert args.planners == PLANNERS and args.trials == 5 and args.objects == "paper"
+    assert args.planners == SIMULATION_PLANNERS and args.trials == 5 and args.objects == "paper"
     assert args.backend == "local" and not args.replay and not args.random_placement
     config = config_from_args(_parse(["--out", str(tmp_path), "--random-placement",
                                       "--x-range", "0.4,0.5", "--seed", "3"]))

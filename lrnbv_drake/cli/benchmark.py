@@ -29,7 +29,7 @@ from lrnbv_drake.experiments.campaign.plan import (
     plan_episodes,
 )
 from lrnbv_drake.experiments.campaign.run import CampaignInterrupted, run_campaign
-from lrnbv_drake.experiments.episode import PLANNERS
+from lrnbv_drake.experiments.episode import SIMULATION_PLANNERS
 from lrnbv_drake.station.parts import check_scenario_files
 from lrnbv_drake.station.scenario import ScenarioError, load_scenario, override, preset
 from lrnbv_drake.station.scenario_checks import check_placement
@@ -45,11 +45,11 @@ input (nothing run), 130 interrupted by Ctrl-C."""
 
 def _planners(text: str) -> tuple[str, ...]:
     names = tuple(dict.fromkeys(p.strip() for p in text.split(",") if p.strip()))
-    unknown = [p for p in names if p not in PLANNERS]
+    unknown = [p for p in names if p not in SIMULATION_PLANNERS]
     if unknown or not names:
         raise argparse.ArgumentTypeError(
             f"--planners '{text}': {', '.join(unknown) or 'none given'} not available; "
-            f"expected a comma-separated subset of {', '.join(PLANNERS)}")
+            f"expected a comma-separated subset of {', '.join(SIMULATION_PLANNERS)}")
     return names
 
 
@@ -70,8 +70,9 @@ def add_benchmark_command(subparsers: argparse._SubParsersAction) -> argparse.Ar
         "benchmark", help="run the paper's campaign: every planner on every object, N trials",
         description=__doc__.split("\n\n")[0], epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--planners", type=_planners, default=PLANNERS,
-                        help=f"comma-separated planners (default: {','.join(PLANNERS)})")
+    parser.add_argument("--planners", type=_planners, default=SIMULATION_PLANNERS,
+                        help="comma-separated planners (default: "
+                             f"{','.join(SIMULATION_PLANNERS)})")
     parser.add_argument("--objects", default="paper",
                         help="paper (the four), family (the generated shapes, placed at "
                              "random over the table unless --random-placement says where), "

@@ -11,7 +11,7 @@ from lrnbv_drake.cli.arg_types import seed
 from lrnbv_drake.cli.out_dir import prepare_out_dir
 from lrnbv_drake.cli.scenario_args import add_scenario_arguments, load_with_overrides
 from lrnbv_drake.core.evaluation import objects
-from lrnbv_drake.experiments.episode import PLANNERS, make_meshcat, run_episode
+from lrnbv_drake.experiments.episode import SIMULATION_PLANNERS, make_meshcat, run_episode
 from lrnbv_drake.station.parts import check_scenario_files
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.station.scenario_checks import check_placement
@@ -38,7 +38,9 @@ exit status: 0 a box was found, 1 the episode found no object, 2 bad input (noth
 written), 130 interrupted by Ctrl-C (what was captured is saved in --out)."""
 
 PLANNER_HELP = ("lrnbv (the paper's LR-NBV), nbv (its NBV baseline: the same without the "
-                "density and visited gains) or heu (13 views on an ellipse around the object)")
+                "density and visited gains), heu (13 views on an ellipse around the object) "
+                "or oracle (knows the object: views that measure each side of its true box, "
+                "until the estimate is within 5 mm)")
 
 
 def _object_pose(text: str) -> tuple[float, float, float]:
@@ -57,7 +59,7 @@ def add_run_command(subparsers: argparse._SubParsersAction) -> None:
     run = subparsers.add_parser("run", help="run one reconstruction episode in the simulated "
                                             "cell", description=DESCRIPTION, epilog=EPILOG,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    run.add_argument("--planner", choices=PLANNERS, default="lrnbv",
+    run.add_argument("--planner", choices=SIMULATION_PLANNERS, default="lrnbv",
                      help=f"{PLANNER_HELP} (default: lrnbv)")
     run.add_argument("--object", help="a built-in object (`lrnbv objects` lists them) or a "
                                       f"mesh file (.obj, .stl, .ply) (default: {placed.name})")

@@ -49,6 +49,7 @@ from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.parts import (
     COMMISSION,
     PLANNERS,
+    SIMULATION_PLANNERS,
     check_scenario_files,
     episode_estimator,
     extraction_params,
@@ -68,8 +69,9 @@ from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
 from lrnbv_drake.systems.planner_visualizer import PlannerVisualizer
 from lrnbv_drake.systems.tof_visualizer import ToFVisualizer
 
-__all__ = ["PLANNERS", "EpisodeDiagram", "EpisodeResult", "EpisodeRun", "build_episode",
-           "final_estimates", "make_meshcat", "run_episode", "run_loop", "write_outputs"]
+__all__ = ["PLANNERS", "SIMULATION_PLANNERS", "EpisodeDiagram", "EpisodeResult", "EpisodeRun",
+           "build_episode", "final_estimates", "make_meshcat", "run_episode", "run_loop",
+           "write_outputs"]
 
 log = logging.getLogger(__name__)
 

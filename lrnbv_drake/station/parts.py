@@ -15,7 +15,9 @@ from lrnbv_drake.core.boxes import AlignedBox
 from lrnbv_drake.core.calibration.commissioning import TableViews, table_view_poses
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator
 from lrnbv_drake.core.estimation.track import EpisodeEstimator
+from lrnbv_drake.core.evaluation.metrics import true_box
 from lrnbv_drake.core.evaluation.objects import PlacedObject
+from lrnbv_drake.core.evaluation.oracle import oracle_policy
 from lrnbv_drake.core.evaluation.packing import (
     CatalogueError,
     Container,
@@ -44,8 +46,12 @@ from lrnbv_drake.station.resources import resolve_url
 from lrnbv_drake.station.scenario import Scenario, ScenarioError
 from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
 
-#: The viewpoint policies `make_policy` knows.
+#: The viewpoint policies of a cell, simulated or real.
 PLANNERS = ("lrnbv", "nbv", "heu")
+#: The planner that knows the true object (`core.evaluation.oracle`): simulation only.
+ORACLE = "oracle"
+#: The policies `make_policy` knows in the simulated cell.
+SIMULATION_PLANNERS = (*PLANNERS, ORACLE)
 #: The policy of `lrnbv hardware commission`: the planned views of the bare table
 #: (`core.calibration.commissioning.TableViews`); its cell has no object.
 COMMISSION = TableViews.name
@@ -175,7 +181,11 @@ def map_system(scenario: Scenario, period: float | None) -> OccupancyMapSystem:
 
 def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
                 placed: PlacedObject | None) -> ViewpointPolicy:
-    """The viewpoint policy called `planner` (`PLANNERS`, or `COMMISSION`)."""
+    """The viewpoint policy called `planner` (`SIMULATION_PLANNERS`, or `COMMISSION`).
+
+    Raises:
+        ValueError: an unknown planner, or the oracle without a simulated object.
+    """
     if planner == COMMISSION:
         return TableViews(table_view_poses(np.asarray(scenario.extraction.center, float),
                                            scenario.cell.table_height),
@@ -183,6 +193,15 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
     if planner == "heu":
         # The object's true centre is given to the HEU baseline only, as in the paper.
         return HeuPolicy(placed.mesh.bounds.mean(axis=0), scenario.heu)
+    workspace = AlignedBox(*(np.asarray(v, float) for v in motion.workspace))
+    if planner == ORACLE:
+        if placed is None:
+            raise ValueError("planner 'oracle' knows the true object: it runs only in the "
+                             "simulated cell, with an object")
+        return oracle_policy(placed.mesh, true_box(placed.mesh.vertices, placed.table_height),
+                             placed.table_height, zone_geometry(scenario), workspace,
+                             motion.ik_batch, motion.collision_free, motion.travel_time,
+                             np.asarray(scenario.robot.initial_position, float))
     if planner in ("lrnbv", "nbv"):
         geometry, cell = zone_geometry(scenario), scenario.cell
         first = None if scenario.planner.first_view == "home" else drop_zone_view(
@@ -190,13 +209,13 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
             cell.max_item_height + scenario.planner.tree.roi_clearance)
         return LrNbvPolicy(
             scenario.planner, geometry,
-            workspace=AlignedBox(*(np.asarray(v, float) for v in motion.workspace)),
-            ik=motion.ik_batch, collision_free=motion.collision_free,
+            workspace=workspace, ik=motion.ik_batch, collision_free=motion.collision_free,
             table_height=cell.table_height, seed=scenario.seed, variant=planner,
             travel_time=motion.travel_time, first_view=first,
             capture_seconds=seconds_at_a_view(scenario.sensor.period,
                                               scenario.sensor.settle_frames))
-    raise ValueError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
+    raise ValueError(f"unknown planner '{planner}': expected one of "
+                     f"{', '.join(SIMULATION_PLANNERS)}")
 
 
 def make_self_filter(scenario: Scenario, motion: MotionPlanner) -> SelfFilter | None:
@@ -216,10 +235,10 @@ def make_self_filter(scenario: Scenario, motion: MotionPlanner) -> SelfFilter | 
 
 def make_stop(planner: str, scenario: Scenario) -> BoxStop | None:
     """The stop rule `planner.stop.rule` names for LR-NBV and NBV (HEU's sweep and the
-    commissioning views are fixed):
+    commissioning views are fixed; the oracle stops on the truth):
     None for the paper's line 24 alone."""
     stop = scenario.planner.stop
-    if stop.rule == "paper" or planner in ("heu", COMMISSION):
+    if stop.rule == "paper" or planner in ("heu", ORACLE, COMMISSION):
         return None
     return BoxStop(stop)
 

@@ -46,7 +46,7 @@ from lrnbv_drake.experiments.campaign.plan import (
     plan_episodes,
 )
 from lrnbv_drake.experiments.campaign.summary import write_outputs
-from lrnbv_drake.experiments.episode import PLANNERS
+from lrnbv_drake.experiments.episode import SIMULATION_PLANNERS
 from lrnbv_drake.experiments.recording import write_atomically
 
 log = logging.getLogger(__name__)
@@ -124,7 +124,8 @@ def _whole_folder(config: CampaignConfig, episodes: Sequence[Episode],
             every.append(record)
     fields = [r["campaign"] for r in every]
     found = {f["planner"] for f in fields}
-    planners = (*(p for p in PLANNERS if p in found), *sorted(found - set(PLANNERS)))
+    planners = (*(p for p in SIMULATION_PLANNERS if p in found),
+                *sorted(found - set(SIMULATION_PLANNERS)))
     objects = list(config.objects)
     for f in fields:
         if f["object"] not in {o.label for o in objects}:

@@ -35,6 +35,7 @@ from lrnbv_drake.experiments.campaign.figures import (
 )
 from lrnbv_drake.experiments.campaign.index_page import index_page
 from lrnbv_drake.experiments.campaign.plan import CampaignConfig
+from lrnbv_drake.station.parts import ORACLE
 
 #: The planner the U tests compare the others against.
 REFERENCE_PLANNER = "lrnbv"
@@ -291,6 +292,7 @@ def summary_markdown(config: CampaignConfig, rows: Sequence[dict[str, Any]],
                   "only poses and wall time are summarised."]
     lines.append("")
     lines += pooled_section(config, ok)
+    lines += oracle_section(config, ok)
     summaries = group_summaries(ok, [m.column for m in METRICS])
     empty = summarize([])
     for obj in object_labels:
@@ -339,11 +341,57 @@ def pooled_table(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[s
                    "truth in interval", "misfit flagged", "fits", "right size", "poses"], body)
 
 
+def oracle_ratios(config: CampaignConfig, ok: Sequence[dict[str, Any]], planner: str,
+                  obj: str | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """`planner`'s poses over the oracle's poses to 5 mm and its cycle time over the
+    oracle's, one of each per trial both finished on (on `obj`, or every object), where
+    the oracle reached 5 mm; and the number of such trials the oracle never did."""
+    never = config.scenario.max_poses + 1
+    oracle = {(r["object"], r["trial"]): r for r in ok if r["planner"] == ORACLE}
+    poses, cycle, missed = [], [], 0
+    for r in ok:
+        o = oracle.get((r["object"], r["trial"]))
+        if r["planner"] != planner or o is None or obj not in (None, r["object"]):
+            continue
+        if not o["poses_to_5mm"] < never:
+            missed += 1
+            continue
+        poses.append(r["n_poses"] / o["poses_to_5mm"])
+        cycle.append(r["cycle_s"] / o["cycle_s"])
+    return np.array(poses), np.array(cycle), missed
+
+
+def oracle_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
+    """Each planner's poses and cycle time as ratios to the oracle's on the same object and
+    trial (`oracle_ratios`), per object and over every object; none without the oracle."""
+    others = [p for p in config.planners if p != ORACLE]
+    if ORACLE not in config.planners or not others:
+        return []
+    header = ["object", "oracle never within 5 mm"]
+    for p in others:
+        header += [f"{planner_label(p)} poses / oracle's", f"{planner_label(p)} cycle / oracle's"]
+    body = []
+    for obj in [*(o.label for o in config.objects), None]:
+        line = [obj or "every object"]
+        for i, p in enumerate(others):
+            poses, cycle, missed = oracle_ratios(config, ok, p, obj)
+            if i == 0:
+                line.append(str(missed))
+            line += [_cell(summarize(poses)), _cell(summarize(cycle))]
+        body.append(line)
+    return ["## Against the oracle", "",
+            "The oracle knows the object (core/evaluation/oracle.py): its poses are those after "
+            "which the estimate was within 5 mm in every dimension, its cycle time the time "
+            "they took. Each cell: median [Q1, Q3] (n) of a planner's poses (cycle time) over "
+            "the oracle's on the same object and trial, where the oracle got within 5 mm.", "",
+            *_table(header, body)]
+
+
 def pooled_tests(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[list[str]]:
     """The U test of the worst error and of the poses of the reference planner against each
     other planner, pooled over objects: rows of (metric, U, p with * where significant,
     n); none without a reference and another planner."""
-    ref, others = REFERENCE_PLANNER, [p for p in config.planners if p != REFERENCE_PLANNER]
+    ref, others = REFERENCE_PLANNER, _tested(config)
     if ref not in config.planners:
         return []
     body = []
@@ -357,9 +405,14 @@ def pooled_tests(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[l
     return body
 
 
+def _tested(config: CampaignConfig) -> list[str]:
+    """The planners the reference is tested against: not itself, nor the oracle (a floor to
+    measure against, `oracle_section`, not a rival)."""
+    return [p for p in config.planners if p not in (REFERENCE_PLANNER, ORACLE)]
+
+
 def _comparison_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
-    ref = REFERENCE_PLANNER
-    others = [p for p in config.planners if p != ref]
+    ref, others = REFERENCE_PLANNER, _tested(config)
     lines = ["## Mann-Whitney U tests", ""]
     if ref not in config.planners or not others:
         ran = ", ".join(planner_label(p) for p in config.planners)
