@@ -129,17 +129,6 @@ def greedy_step(covers: np.ndarray, needed: np.ndarray, cost: np.ndarray,
     return int(best[np.argmin(cost[best])])
 
 
-def greedy_cover(covers: np.ndarray, cost: np.ndarray | None = None) -> list[int]:
-    """The views of a greedy set cover of every side some view measures, in the order chosen
-    (`greedy_step`, with a fixed `cost`, default the view's index)."""
-    cost = np.arange(len(covers), dtype=float) if cost is None else np.asarray(cost, float)
-    needed, open_views, order = covers.any(axis=0), np.ones(len(covers), bool), []
-    while (i := greedy_step(covers, needed, cost, open_views)) is not None:
-        order.append(i)
-        open_views[i], needed = False, needed & ~covers[i]
-    return order
-
-
 def reachable(views: np.ndarray, ik: IK, collision_free: Callable[[np.ndarray], bool],
               q: np.ndarray) -> np.ndarray:
     """(N,) bool: which views (N, 4, 4) the arm reaches by an IK solution free of collision."""

@@ -21,8 +21,9 @@ from matplotlib.ticker import MaxNLocator
 
 from lrnbv_drake.core.evaluation.stats import finite
 
-PLANNER_LABELS = {"lrnbv": "LR-NBV", "nbv": "NBV", "heu": "HEU"}
-PLANNER_COLORS = {"lrnbv": "tab:blue", "nbv": "tab:orange", "heu": "tab:green"}
+PLANNER_LABELS = {"lrnbv": "LR-NBV", "nbv": "NBV", "heu": "HEU", "oracle": "oracle"}
+PLANNER_COLORS = {"lrnbv": "tab:blue", "nbv": "tab:orange", "heu": "tab:green",
+                  "oracle": "tab:gray"}
 
 
 def planner_label(planner: str) -> str:

@@ -391,7 +391,7 @@ def pooled_tests(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[l
     """The U test of the worst error and of the poses of the reference planner against each
     other planner, pooled over objects: rows of (metric, U, p with * where significant,
     n); none without a reference and another planner."""
-    ref, others = REFERENCE_PLANNER, _tested(config)
+    ref, others = REFERENCE_PLANNER, rivals(config)
     if ref not in config.planners:
         return []
     body = []
@@ -405,14 +405,14 @@ def pooled_tests(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[l
     return body
 
 
-def _tested(config: CampaignConfig) -> list[str]:
+def rivals(config: CampaignConfig) -> list[str]:
     """The planners the reference is tested against: not itself, nor the oracle (a floor to
     measure against, `oracle_section`, not a rival)."""
     return [p for p in config.planners if p not in (REFERENCE_PLANNER, ORACLE)]
 
 
 def _comparison_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
-    ref, others = REFERENCE_PLANNER, _tested(config)
+    ref, others = REFERENCE_PLANNER, rivals(config)
     lines = ["## Mann-Whitney U tests", ""]
     if ref not in config.planners or not others:
         ran = ", ".join(planner_label(p) for p in config.planners)
