@@ -17,7 +17,7 @@ from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator
 from lrnbv_drake.core.estimation.track import EpisodeEstimator
 from lrnbv_drake.core.evaluation.metrics import true_box
 from lrnbv_drake.core.evaluation.objects import PlacedObject
-from lrnbv_drake.core.evaluation.oracle import oracle_policy
+from lrnbv_drake.core.evaluation.oracle import ORACLE, oracle_policy
 from lrnbv_drake.core.evaluation.packing import (
     CatalogueError,
     Container,
@@ -48,9 +48,8 @@ from lrnbv_drake.systems.occupancy_map import OccupancyMapSystem
 
 #: The viewpoint policies of a cell, simulated or real.
 PLANNERS = ("lrnbv", "nbv", "heu")
-#: The planner that knows the true object (`core.evaluation.oracle`): simulation only.
-ORACLE = "oracle"
-#: The policies `make_policy` knows in the simulated cell.
+#: The policies `make_policy` knows in the simulated cell: also the oracle, which knows the
+#: true object (`core.evaluation.oracle`).
 SIMULATION_PLANNERS = (*PLANNERS, ORACLE)
 #: The policy of `lrnbv hardware commission`: the planned views of the bare table
 #: (`core.calibration.commissioning.TableViews`); its cell has no object.

@@ -26,6 +26,7 @@ import numpy as np
 import trimesh
 
 from lrnbv_drake.core.boxes import AlignedBox, OrientedBox
+from lrnbv_drake.core.estimation.estimator import BoxEstimate
 from lrnbv_drake.core.evaluation.metrics import ROUNDING_SLACK
 from lrnbv_drake.core.planning.policy import Observation, Proposal, Recorded, ViewpointPolicy
 from lrnbv_drake.core.planning.utility import sensor_rays
@@ -37,6 +38,8 @@ from lrnbv_drake.core.sensing.sensor import ZoneGeometry
 IK = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 #: Seconds the arm takes from joints q to each of configurations Q (n, 6).
 TravelTime = Callable[[np.ndarray, np.ndarray], np.ndarray]
+#: The oracle's planner name (`OraclePolicy.name`), as campaigns and reports give it.
+ORACLE = "oracle"
 #: The box's free sides, in the order of `side_cover`'s columns (x, y: the box's own axes).
 SIDES: tuple[str, ...] = ("+x", "-x", "+y", "-y", "top")
 
@@ -98,7 +101,7 @@ def side_cover(X_WS: np.ndarray, rays_S: np.ndarray, mesh: trimesh.Trimesh,
     """(N, 5) bool: which of `SIDES` of `box` each view X_WS (N, 4, 4) measures. `rays_S`
     (Z, K, 3): each zone's K unit sub-ray directions in the sensor frame; a zone measures a
     side when more than half its sub-rays first meet the object within `tolerance` of the
-    side's plane."""
+    side's plane, so that the zone's nearest-cluster reading is that side's distance."""
     Z, K = rays_S.shape[:2]
     N = len(X_WS)
     directions = np.einsum("nij,rj->nri", X_WS[:, :3, :3], rays_S.reshape(-1, 3))
@@ -165,7 +168,7 @@ class OraclePolicy(ViewpointPolicy):
         travel_time: seconds from joints q to each of configurations Q (n, 6).
     """
 
-    name = "oracle"
+    name = ORACLE
     capture_initial = False
 
     def __init__(self, views: np.ndarray, covers: np.ndarray, true_dims: np.ndarray,
@@ -177,12 +180,14 @@ class OraclePolicy(ViewpointPolicy):
         self.needed = self.covers.any(axis=0)
         self._ranked: list[int] = []
 
-    def _within(self, estimate) -> bool:
+    def _within(self, estimate: BoxEstimate | None) -> bool:
         return estimate is not None and bool(np.all(
             np.abs(estimate.box.dims - self.true_dims) <= self.tolerance + ROUNDING_SLACK))
 
     def _cost(self, q: np.ndarray) -> np.ndarray:
-        """Seconds from q to each view's nearest IK solution (inf where it has none)."""
+        """Seconds from q to each view's nearest IK solution (inf where it has none),
+        whether or not that solution is free of collision: it only breaks ties between views
+        that measure as many sides, and the loop plans the motion it makes."""
         Q, n = self.ik(self.views, q)
         cost = np.full(len(self.views), np.inf)
         cost[n > 0] = self.travel_time(q, Q[n > 0, 0])

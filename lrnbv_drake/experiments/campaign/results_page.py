@@ -29,12 +29,11 @@ from lrnbv_drake.experiments.campaign.summary import (
     REFERENCE_PLANNER,
     auc_budgets,
     episode_row,
-    oracle_ratios,
+    oracle_line,
     pooled_table,
     pooled_tests,
     rivals,
 )
-from lrnbv_drake.station.parts import ORACLE
 
 #: The manifests the page cites.
 MANIFEST_DIR = Path(__file__).resolve().parents[3] / "benchmarks" / "campaigns"
@@ -194,23 +193,9 @@ def campaign_block(manifest: Manifest, config: CampaignConfig,
     if tests:
         lines.append(f"Pooled U tests of {planner_label(REFERENCE_PLANNER)}: " + "; ".join(
             f"{metric} p {p} (U {u}, n {n})" for metric, u, p, n in tests) + ".")
-    if ORACLE in config.planners:
-        lines.append(oracle_line(config, ok))
+    if line := oracle_line(config, ok):
+        lines.append(line)
     return "\n".join(lines).rstrip() + "\n"
-
-
-def oracle_line(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> str:
-    """Each other planner's poses over the oracle's on the same object and trial
-    (`summary.oracle_ratios`), pooled: median [Q1, Q3] (n)."""
-    others = [p for p in config.planners if p != ORACLE]
-    cells, missed = [], 0
-    for p in others:
-        poses, _, missed = oracle_ratios(config, ok, p)
-        cells.append(f"{planner_label(p)} " + ("n/a" if len(poses) == 0 else (
-            f"{np.median(poses):.2f} [{np.percentile(poses, 25):.2f}, "
-            f"{np.percentile(poses, 75):.2f}] (n {len(poses)})")))
-    return ("Poses over the oracle's on the same object and trial, where it got within 5 mm "
-            f"(it never did in {missed}): " + "; ".join(cells) + ".")
 
 
 def detail_path(page: Path, manifest: Manifest) -> Path:
