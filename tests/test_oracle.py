@@ -23,8 +23,8 @@ from lrnbv_drake.core.planning.policy import CANDIDATE_RANK, Observation
 from lrnbv_drake.core.planning.utility import sensor_rays
 from lrnbv_drake.core.robot.poses import look_at
 from lrnbv_drake.core.sensing.sensor import ZoneGeometry
+from lrnbv_drake.experiments.campaign.oracle_table import oracle_line, oracle_ratios
 from lrnbv_drake.experiments.campaign.plan import CampaignConfig, CampaignObject
-from lrnbv_drake.experiments.campaign.summary import oracle_line, oracle_ratios
 from lrnbv_drake.experiments.episode import run_episode
 from lrnbv_drake.station.scenario import load_scenario
 

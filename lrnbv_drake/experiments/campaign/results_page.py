@@ -24,12 +24,12 @@ import numpy as np
 from lrnbv_drake.core.evaluation.stats import ALPHA, compare_planners, finite
 from lrnbv_drake.core.strict_yaml import load_yaml
 from lrnbv_drake.experiments.campaign.figures import planner_label
+from lrnbv_drake.experiments.campaign.oracle_table import oracle_line
 from lrnbv_drake.experiments.campaign.plan import CampaignConfig
 from lrnbv_drake.experiments.campaign.summary import (
     REFERENCE_PLANNER,
     auc_budgets,
     episode_row,
-    oracle_line,
     pooled_table,
     pooled_tests,
     rivals,

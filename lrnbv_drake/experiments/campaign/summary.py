@@ -22,7 +22,6 @@ from lrnbv_drake.core.evaluation.metrics import coverage_auc
 from lrnbv_drake.core.evaluation.oracle import ORACLE
 from lrnbv_drake.core.evaluation.stats import (
     ALPHA,
-    Summary,
     compare_planners,
     finite,
     group_summaries,
@@ -35,6 +34,8 @@ from lrnbv_drake.experiments.campaign.figures import (
     plot_coverage_curves,
 )
 from lrnbv_drake.experiments.campaign.index_page import index_page
+from lrnbv_drake.experiments.campaign.markdown import cell, first_line, fmt, table
+from lrnbv_drake.experiments.campaign.oracle_table import oracle_section
 from lrnbv_drake.experiments.campaign.plan import CampaignConfig
 
 #: The planner the U tests compare the others against.
@@ -225,34 +226,6 @@ def read_results_csv(folder: str | Path) -> list[dict[str, str]]:
     return rows
 
 
-def _fmt(value: float, snap: bool = True) -> str:
-    """Three significant digits; with `snap`, 0 for a value that is 0 but for float rounding
-    (an error of 1.11e-16 m is no error; a p-value of 1e-12 is not 0)."""
-    if not math.isfinite(value):
-        return "n/a"
-    return f"{round(value, 9) + 0.0 if snap else value:.3g}"
-
-
-def _cell(summary: Summary) -> str:
-    if summary.n == 0:
-        return "n/a"
-    if summary.n == 1:  # no quartiles to speak of
-        return f"{_fmt(summary.median)} (n=1)"
-    return f"{_fmt(summary.median)} [{_fmt(summary.q1)}, {_fmt(summary.q3)}] (n={summary.n})"
-
-
-def _first_line(text: str) -> str:
-    """The first line of `text`, safe in a markdown table cell."""
-    return (text.splitlines() or [""])[0].replace("|", "\\|")
-
-
-def _table(header: Sequence[str], lines: Iterable[Sequence[str]]) -> list[str]:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(line) + " |" for line in lines]
-    out.append("")
-    return out
-
-
 def summary_markdown(config: CampaignConfig, rows: Sequence[dict[str, Any]],
                      records: Sequence[dict[str, Any]]) -> str:
     """summary.md: settings, failures, medians with quartiles, and the U tests."""
@@ -277,8 +250,8 @@ def summary_markdown(config: CampaignConfig, rows: Sequence[dict[str, Any]],
         lines += ["## Failed episodes", "",
                   "Their tracebacks are in episodes/<episode>.json; rerun the same command to "
                   "retry them. They are left out of every statistic below.", ""]
-        lines += _table(["episode", "error"], (
-            [f["episode"], _first_line(f["error"])] for f in (r["campaign"] for r in records)
+        lines += table(["episode", "error"], (
+            [f["episode"], first_line(f["error"])] for f in (r["campaign"] for r in records)
             if f["status"] != "ok"))
     no_metrics = sorted({r["campaign"]["planner"] for r in records
                          if r["campaign"]["status"] == "ok" and not r.get("metrics")})
@@ -297,8 +270,8 @@ def summary_markdown(config: CampaignConfig, rows: Sequence[dict[str, Any]],
     empty = summarize([])
     for obj in object_labels:
         lines += [f"### {obj}", ""]
-        lines += _table(["metric", *(planner_label(p) for p in planners)], (
-            [m.label, *(_cell(summaries.get((obj, p), {}).get(m.column, empty))
+        lines += table(["metric", *(planner_label(p) for p in planners)], (
+            [m.label, *(cell(summaries.get((obj, p), {}).get(m.column, empty))
                         for p in planners)] for m in METRICS))
     return "\n".join(lines + _comparison_section(config, ok)) + "\n"
 
@@ -319,7 +292,7 @@ def pooled_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list
     if tests:
         lines += [f"Two-sided U tests of {planner_label(REFERENCE_PLANNER)} against each other "
                   "planner, pooled (U as below).", "",
-                  *_table(["metric", "U", "p", "n"], tests)]
+                  *table(["metric", "U", "p", "n"], tests)]
     return lines
 
 
@@ -336,73 +309,9 @@ def pooled_table(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[s
         body.append([planner_label(planner), *spread,
                      *(_share(rows, c) for c in ("truth_in_interval", "misfit_flag", "fits",
                                                  "right_size")),
-                     _cell(summarize(r["n_poses"] for r in rows))])
-    return _table(["planner", "worst error median (mm)", "p95 (mm)", "max (mm)",
+                     cell(summarize(r["n_poses"] for r in rows))])
+    return table(["planner", "worst error median (mm)", "p95 (mm)", "max (mm)",
                    "truth in interval", "misfit flagged", "fits", "right size", "poses"], body)
-
-
-def oracle_ratios(config: CampaignConfig, ok: Sequence[dict[str, Any]], planner: str,
-                  obj: str | None = None) -> tuple[np.ndarray, np.ndarray, int]:
-    """`planner`'s poses over the oracle's poses to 5 mm and its cycle time over the
-    oracle's, one of each per trial both finished on (on `obj`, or every object) where the
-    oracle reached 5 mm; and the number of the oracle's trials (there) it never did. The
-    planner's poses are all it took, within 5 mm or not: one that stops short of 5 mm can
-    score below 1."""
-    never = config.scenario.max_poses + 1
-    mine = [r for r in ok if obj in (None, r["object"])]
-    oracle = {(r["object"], r["trial"]): r for r in mine if r["planner"] == ORACLE}
-    reached = {k: o for k, o in oracle.items() if o["poses_to_5mm"] < never}
-    pairs = [(r, reached[r["object"], r["trial"]]) for r in mine
-             if r["planner"] == planner and (r["object"], r["trial"]) in reached]
-    return (np.array([r["n_poses"] / o["poses_to_5mm"] for r, o in pairs]),
-            np.array([r["cycle_s"] / o["cycle_s"] for r, o in pairs]),
-            len(oracle) - len(reached))
-
-
-def _floored(config: CampaignConfig) -> list[str]:
-    """The planners measured against the oracle: all but it; none without it."""
-    if ORACLE not in config.planners:
-        return []
-    return [p for p in config.planners if p != ORACLE]
-
-
-def oracle_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[str]:
-    """Each planner's poses and cycle time as ratios to the oracle's on the same object and
-    trial (`oracle_ratios`), per object and over every object; none without the oracle."""
-    others = _floored(config)
-    if not others:
-        return []
-    header = ["object", "oracle never within 5 mm"]
-    for p in others:
-        header += [f"{planner_label(p)} poses / oracle's", f"{planner_label(p)} cycle / oracle's"]
-    body = []
-    for obj in [*(o.label for o in config.objects), None]:
-        line = [obj or "every object", str(oracle_ratios(config, ok, others[0], obj)[2])]
-        for p in others:
-            poses, cycle, _ = oracle_ratios(config, ok, p, obj)
-            line += [_cell(summarize(poses)), _cell(summarize(cycle))]
-        body.append(line)
-    return ["## Against the oracle", "",
-            "The oracle knows the object (core/evaluation/oracle.py): its poses are those after "
-            "which the estimate was within 5 mm in every dimension, its cycle time the time "
-            "they took. Each cell: median [Q1, Q3] (n) of a planner's poses (cycle time) over "
-            "the oracle's on the same object and trial, where the oracle got within 5 mm; a "
-            "planner's poses are all it took, so one that stops short of 5 mm can score "
-            "below 1.", "",
-            *_table(header, body)]
-
-
-def oracle_line(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> str:
-    """Each other planner's poses over the oracle's (`oracle_ratios`) pooled over objects, on
-    one line; empty without the oracle."""
-    others = _floored(config)
-    if not others:
-        return ""
-    cells = [f"{planner_label(p)} {_cell(summarize(oracle_ratios(config, ok, p)[0]))}"
-             for p in others]
-    return ("Poses over the oracle's on the same object and trial, where it got within 5 mm "
-            f"(it never did in {oracle_ratios(config, ok, others[0])[2]}): "
-            + "; ".join(cells) + ".")
 
 
 def pooled_tests(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[list[str]]:
@@ -417,8 +326,8 @@ def pooled_tests(config: CampaignConfig, ok: Sequence[dict[str, Any]]) -> list[l
         for column, label in (("worst_err", "worst error"), ("n_poses", "poses")):
             t = mann_whitney((r[column] for r in ok if r["planner"] == ref),
                              (r[column] for r in ok if r["planner"] == other))
-            body.append([f"{label}, vs {planner_label(other)}", _fmt(t.u),
-                         _fmt(t.p, snap=False) + (" *" if t.significant else ""),
+            body.append([f"{label}, vs {planner_label(other)}", fmt(t.u),
+                         fmt(t.p, snap=False) + (" *" if t.significant else ""),
                          f"{t.n_a} / {t.n_b}"])
     return body
 
@@ -460,10 +369,10 @@ def _comparison_section(config: CampaignConfig, ok: Sequence[dict[str, Any]]) ->
             line = [metric.label]
             for other in others:
                 t = tests[obj, metric.column, other]
-                line += [_fmt(t.u), _fmt(t.p, snap=False) + (" *" if t.significant else ""),
+                line += [fmt(t.u), fmt(t.p, snap=False) + (" *" if t.significant else ""),
                          "; ".join(filter(None, (t.method, t.note)))]
             body.append(line)
-        lines += [f"### {obj}", "", *_table(header, body)]
+        lines += [f"### {obj}", "", *table(header, body)]
     return lines
 
 
