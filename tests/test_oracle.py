@@ -217,16 +217,20 @@ def test_ratios_to_the_oracle_pair_trials_and_leave_out_those_it_never_reached()
                 "poses_to_5mm": to_5mm, "cycle_s": cycle}
 
     rows = [row("oracle", "a", 0, 2, 2, 4.0), row("lrnbv", "a", 0, 6, 3, 12.0),
-            row("oracle", "a", 1, 4, 4, 10.0), row("lrnbv", "a", 1, 6, 6, 5.0),
+            row("oracle", "a", 1, 4, 4, 10.0), row("lrnbv", "a", 1, 6, never, 5.0),
             row("oracle", "b", 0, 9, never, 20.0), row("lrnbv", "b", 0, 5, 5, 8.0)]
-    poses, cycle, missed = oracle_ratios(config, rows, "lrnbv", "a")
-    np.testing.assert_allclose(poses, [3.0, 1.5])
-    np.testing.assert_allclose(cycle, [3.0, 0.5])
-    assert missed == 0
-    poses, cycle, missed = oracle_ratios(config, rows, "lrnbv")
-    assert len(poses) == 2 and missed == 1  # b's trial: the oracle never got within 5 mm
+    dut = oracle_ratios(config, rows, "lrnbv", "a")
+    np.testing.assert_allclose(dut.poses, [3.0, 1.5])
+    np.testing.assert_allclose(dut.cycle, [3.0, 0.5])
+    # Only a's trial 0 has both within 5 mm: 3 poses to the oracle's 2, then 3 more.
+    np.testing.assert_allclose(dut.views, [1.5])
+    np.testing.assert_allclose(dut.confirming, [3.0])
+    assert dut.oracle_never == 0 and dut.planner_never == 1
+    dut = oracle_ratios(config, rows, "lrnbv")
+    assert len(dut.poses) == 2 and dut.oracle_never == 1  # b: the oracle never got there
     line = oracle_line(config, rows)  # the results page's: median 2.25 of 3 and 1.5
     assert "LR-NBV 2.25 [" in line and "(n=2)" in line and "never did in 1" in line
+    assert "over the oracle's 1.5 (n=1), then 3 (n=1) poses" in line
     assert oracle_line(dc.replace(config, planners=("lrnbv",)), rows) == ""
 
 
