@@ -1,0 +1,126 @@
+"""Configurations that surely collide, without Drake: balls inside the arm's collision
+geometry, tested against the cell's boxes and against each other.
+
+About half the IK solutions a planning iteration checks collide, and SceneGraph's exact check
+of a colliding configuration takes about three times as long as of a free one. A ball that lies
+inside a link's geometry and reaches into the table, or into a ball of another link the checker
+does not filter, proves the collision in a microsecond: two shapes' signed distance is at most
+that of any two balls inside them. So `surely_colliding` only ever answers "collides"; every
+configuration it does not reject still goes to the exact check, and the planner's answers do
+not change (station/motion.py builds the balls from the plant's geometry;
+tests/test_sure_collision.py checks them against SceneGraph).
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numba
+import numpy as np
+
+from lrnbv_drake.core.robot.kinematics import _as_kernel_array, _dh, _mul_right
+
+
+@dc.dataclass(frozen=True)
+class ArmBalls:
+    """Balls inside the arm's collision geometry and what each must keep clear of."""
+
+    # (m,) int: the DH frame each ball rides on, 0 the controller's `base`, i the frame after
+    # joint i (6 is `tool0`).
+    frame: np.ndarray
+    # (m, 3): each ball's centre in its frame, metres.
+    centre: np.ndarray
+    # (m,): each ball's radius, metres (the reaches below hold it).
+    radius: np.ndarray
+    # (k, 4, 4): X_G_W, the world expressed in each of the cell's boxes' frames.
+    box_from_world: np.ndarray
+    # (k, 3): each box's half extents, metres.
+    box_half: np.ndarray
+    # (p, 2) int: (ball, box) pairs; the configuration collides where the ball's centre lies
+    # nearer its box than `ball_box_reach` (signed distance, negative inside).
+    ball_box: np.ndarray
+    # (p,): the ball's radius plus the checker's padding of the pair, metres.
+    ball_box_reach: np.ndarray
+    # (s, 2) int: ball pairs on bodies the checker tests against each other; the configuration
+    # collides where their centres are nearer than `ball_ball_reach`.
+    ball_ball: np.ndarray
+    # (s,): the two radii plus the checker's padding of the pair, metres.
+    ball_ball_reach: np.ndarray
+
+    def __post_init__(self) -> None:
+        # Kernel arguments once, not per call: the planner asks about one configuration at
+        # a time.
+        for field in dc.fields(self):
+            value = getattr(self, field.name)
+            kind = np.int64 if field.name in ("frame", "ball_box", "ball_ball") else float
+            object.__setattr__(self, field.name, np.ascontiguousarray(value, dtype=kind))
+
+
+def arm_frames(q: np.ndarray, X_W_base: np.ndarray) -> np.ndarray:
+    """(7, 4, 4): the DH frames of joints q (6,) in world, `base` at X_W_base: frame 0 is
+    `base`, frame i the one after joint i (6 is `tool0`)."""
+    frames = np.empty((7, 4, 4))
+    _frames(_as_kernel_array(q), _as_kernel_array(X_W_base), frames, np.empty((4, 4)))
+    return frames
+
+
+def surely_colliding(Q: np.ndarray, X_W_base: np.ndarray, balls: ArmBalls) -> np.ndarray:
+    """(n,) bool: which configurations Q (n, 6) certainly collide (a ball pair or a ball and a
+    box overlap). False means only "not proved": ask the exact checker."""
+    b = balls
+    return _kernel(_as_kernel_array(np.asarray(Q, float).reshape(-1, 6)),
+                   _as_kernel_array(X_W_base), b.frame, b.centre, b.box_from_world,
+                   b.box_half, b.ball_box, b.ball_box_reach, b.ball_ball, b.ball_ball_reach)
+
+
+@numba.njit(cache=True)
+def _frames(q, X_W_base, frames, D):
+    """frames (7, 4, 4) = the DH frames of q in world (`arm_frames`)."""
+    frames[0] = X_W_base
+    for i in range(6):
+        frames[i + 1] = frames[i]
+        _dh(q[i], i, D)
+        _mul_right(frames[i + 1], D)
+
+
+@numba.njit(cache=True)
+def _box_distance(p, X, half):
+    """Signed distance from world point p to the box of half extents `half` whose frame sees
+    the world as X (negative inside)."""
+    outside, inside = 0.0, -np.inf
+    for i in range(3):
+        d = abs(X[i, 0] * p[0] + X[i, 1] * p[1] + X[i, 2] * p[2] + X[i, 3]) - half[i]
+        outside += max(d, 0.0) ** 2
+        inside = max(inside, d)
+    return np.sqrt(outside) + min(inside, 0.0)
+
+
+@numba.njit(cache=True)
+def _kernel(Q, X_W_base, frame, centre, box_from_world, box_half, ball_box, ball_box_reach,
+            ball_ball, ball_ball_reach):
+    frames = np.empty((7, 4, 4))
+    D = np.empty((4, 4))
+    world = np.empty((len(frame), 3))
+    out = np.zeros(Q.shape[0], np.bool_)
+    for n in range(Q.shape[0]):
+        _frames(Q[n], X_W_base, frames, D)
+        for b in range(len(frame)):
+            X = frames[frame[b]]
+            for r in range(3):
+                world[b, r] = (X[r, 0] * centre[b, 0] + X[r, 1] * centre[b, 1]
+                               + X[r, 2] * centre[b, 2] + X[r, 3])
+        for j in range(len(ball_box)):
+            b, k = ball_box[j, 0], ball_box[j, 1]
+            if _box_distance(world[b], box_from_world[k], box_half[k]) < ball_box_reach[j]:
+                out[n] = True
+                break
+        if out[n]:
+            continue
+        for j in range(len(ball_ball)):
+            a, b = ball_ball[j, 0], ball_ball[j, 1]
+            d2 = ((world[a, 0] - world[b, 0]) ** 2 + (world[a, 1] - world[b, 1]) ** 2
+                  + (world[a, 2] - world[b, 2]) ** 2)
+            if d2 < ball_ball_reach[j] ** 2:
+                out[n] = True
+                break
+    return out
