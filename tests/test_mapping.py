@@ -64,6 +64,14 @@ def assert_same_as_octree(m: OccupancyMap, tree: OcTree, rng: np.random.Generato
     lo, hi = m.bounds
     pts = rng.uniform(lo, hi, size=(2000, 3))
     np.testing.assert_array_equal(m.classify(pts), tree.getLabels(pts))
+    # A block of cells across the grid's lower corner, by slice, against the octree at its
+    # cells' centres (outside the grid: unknown).
+    lower, shape = m.index_offset - np.array([5, 3, 7]), (40, 35, 45)
+    centers = (lower + np.indices(shape).reshape(3, -1).T + 0.5) * m.resolution
+    inside = np.all((centers >= lo) & (centers < hi), axis=1)
+    assert 0 < inside.sum() < len(inside)
+    np.testing.assert_array_equal(m.classify_block(lower, shape).reshape(-1),
+                                  np.where(inside, tree.getLabels(centers), -1))
 
 
 # --- sensor model --------------------------------------------------------------------------------

@@ -33,10 +33,10 @@ class GridMap:
         self.states = states or {}
         self.default = default
 
-    def classify(self, points):
-        keys = np.floor(np.asarray(points) / RES + 1e-9).astype(int)
+    def classify_block(self, lower, shape):
+        keys = np.indices(shape).reshape(3, -1).T + lower
         return np.array([self.states.get(tuple(k), self.default) for k in keys.tolist()],
-                        dtype=np.int8)
+                        dtype=np.int8).reshape(shape)
 
 
 # One ray along world +x from (0, 0.005, 0.005): a sensor at the origin whose optical axis

@@ -225,6 +225,22 @@ class OccupancyMap:
         out[known] = values[known] >= self._model_lo[4]
         return out
 
+    def classify_block(self, lower: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
+        """(shape) int8 states, as `classify` gives them, of the block of cells whose global
+        indices (`cell_indices` plus `index_offset`) start at `lower` (3,): one slice of the
+        grid instead of a lookup per cell centre."""
+        out = np.full(shape, -1, dtype=np.int8)
+        start = np.asarray(lower, np.int64) - self._lo
+        a = np.clip(start, 0, self.shape)
+        b = np.clip(start + np.asarray(shape, np.int64), 0, self.shape)
+        if np.any(b <= a):
+            return out
+        values = self._grid[a[0]:b[0], a[1]:b[1], a[2]:b[2]]
+        a, b = a - start, b - start
+        out[a[0]:b[0], a[1]:b[1], a[2]:b[2]] = np.where(
+            np.isnan(values), -1, values >= self._model_lo[4])
+        return out
+
     def counts(self) -> CellCounts:
         """Number of unknown, free and occupied cells in the grid; one pass over the grid, cached
         until the next insertion."""

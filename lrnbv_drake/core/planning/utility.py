@@ -77,7 +77,7 @@ def make_snapshot(occupancy, roi: AlignedBox, object_points: np.ndarray,
     """Copies the map's cells inside `roi` and counts object points around each cell.
 
     Args:
-        occupancy: an `OccupancyMap` (anything with `resolution` and `classify(points)`).
+        occupancy: an `OccupancyMap` (anything with `resolution` and `classify_block`).
         roi: region of interest, snapped outwards to whole cells.
         object_points: (N, 3) centres of the object's cells.
         object_center: the object's estimated centre.
@@ -89,9 +89,7 @@ def make_snapshot(occupancy, roi: AlignedBox, object_points: np.ndarray,
     hi = np.ceil(roi.upper / res).astype(np.int64)
     shape = tuple(int(n) for n in np.maximum(hi - lo, 1))
     origin = lo * res
-    idx = np.indices(shape).reshape(3, -1).T
-    centers = origin + (idx + 0.5) * res
-    state = occupancy.classify(centers).reshape(shape).astype(np.int8)
+    state = occupancy.classify_block(lo, shape)
     counts = np.zeros(shape, np.float32)
     pts = np.asarray(object_points, float).reshape(-1, 3)
     if len(pts):
