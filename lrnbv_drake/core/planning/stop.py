@@ -42,6 +42,7 @@ class BoxStop:
         if not (np.all(spread < p.tolerance) and np.all(recent[-1].widths <= p.interval_width)):
             return None
         return (f"the box held still and is known: every dimension moved less than "
-                f"{1000 * p.tolerance:.0f} mm over the last {p.stable_poses} poses and its "
+                f"{1000 * p.tolerance:.0f} mm over the last "
+                f"{'pose' if p.stable_poses == 1 else f'{p.stable_poses} poses'} and its "
                 f"interval is narrower than {1000 * p.interval_width:.0f} mm "
                 f"({' x '.join(f'{v:.3f}' for v in recent[-1].box.dims)} m)")
