@@ -1,0 +1,119 @@
+"""Recorded LR-NBV episodes replayed under stop rules that would end them sooner: the
+estimates pose by pose (`lrnbv refit`'s), each rule asked after each pose, and the box, its
+container and the cycle time up to the pose the rule stops at. The views before a stop do not
+depend on the stop rule, so an earlier stop on a recorded episode is the episode that rule
+would have run.
+
+Rules: `stalled1` (`stalled2`) stops once the box held still over the last pose, at least
+`min_poses` were taken, every dimension's interval is bounded (narrower than
+`estimation.interval_reach`) and each is narrower than `interval_width` or narrowed by less
+than `tolerance` over the last pose (each of the last two). Record 0026.
+
+    .venv/bin/python benchmarks/replay_stop_rules.py out/results/family/runs/lrnbv__* > replay.jsonl
+    .venv/bin/python benchmarks/replay_stop_rules.py --summary replay.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from lrnbv_drake.core.evaluation.packing import packing_metrics
+from lrnbv_drake.experiments.refit import load_episode
+from lrnbv_drake.station.parts import container_catalogue, episode_estimator, packing_decision
+
+
+def _held(track, p, k):
+    recent = track.estimates[-(k + 1):]
+    if (len(track.estimates) < max(p.min_poses, k + 1)
+            or any(e is None or e.interval is None for e in recent)):
+        return None
+    spread = np.ptp(np.array([e.box.dims for e in recent]), axis=0)
+    return recent if np.all(spread < p.tolerance) else None
+
+
+def stalled(k: int):
+    def rule(track, p, reach):
+        recent = _held(track, p, max(k, p.stable_poses))
+        if recent is None:
+            return False
+        widths = [e.widths for e in recent]
+        if np.all(widths[-1] <= p.interval_width):
+            return True
+        if np.any(widths[-1] >= reach):
+            return False
+        return not any(np.any((b > p.interval_width) & (a - b >= p.tolerance))
+                       for a, b in zip(widths[-k - 1:-1], widths[-k:], strict=True))
+    return rule
+
+
+RULES = {"stalled1": stalled(1), "stalled2": stalled(2)}
+
+
+def replay(folder: str) -> dict:
+    episode = load_episode(folder)
+    report = json.loads((episode.folder / "report.json").read_text())
+    scenario, true = episode.scenario, episode.true
+    p, reach = scenario.planner.stop, scenario.estimation.interval_reach
+    times = [pose["time"] for pose in report["poses"]]
+    computing = [s["policy_s"] + s["motion_planning_s"] for s in report["timing"]["planning_steps"]]
+    metrics, packing = report["metrics"], report["metrics"].get("packing", {})
+    out = {"folder": folder, "recorded": {
+        "poses": report["n_poses"], "worst": max(abs(v) for v in metrics["dim_errors_mm"]),
+        "fits": packing.get("fits"), "right": packing.get("right_size"),
+        "inside": all(metrics.get("truth_in_interval") or [False]),
+        "cycle": report["cycle_time"]["total_s"]}}
+    estimator, n = episode_estimator(scenario), len(episode.readings)
+    for i in range(n):
+        track = estimator.update(episode.readings[:i + 1], episode.cell_boxes[:i + 1])
+        for name, rule in RULES.items():
+            if name in out or not (rule(track, p, reach) or i == n - 1):
+                continue
+            e = track.latest
+            decision = packing_decision(scenario, e)
+            fit = packing_metrics(decision, true.dims, container_catalogue(scenario)) \
+                if decision else {}
+            out[name] = {
+                "poses": i + 1, "worst": float(np.max(np.abs(e.box.dims - true.dims))) * 1000,
+                "fits": fit.get("fits"), "right": fit.get("right_size"),
+                "inside": bool(np.all((e.dims_lower <= true.dims) & (true.dims <= e.dims_upper))),
+                "cycle": times[i] + sum(computing[:i + 1])}
+        if all(name in out for name in RULES):
+            break
+    return out
+
+
+def summary(path: str) -> None:
+    rows = [json.loads(line) for line in open(path)]
+    for group in sorted({r["folder"].split("/runs/")[0] for r in rows}):
+        found = [r for r in rows if r["folder"].startswith(group + "/runs/")]
+        print(f"{group} ({len(found)} episodes)")
+        for name in ("recorded", *RULES):
+            v = {key: np.array([r[name][key] for r in found], float)
+                 for key in ("poses", "worst", "fits", "right", "inside", "cycle")}
+            print(f"  {name:9s} poses median {np.median(v['poses']):.1f} total "
+                  f"{v['poses'].sum():.0f}; worst median {np.median(v['worst']):.1f} mm, p95 "
+                  f"{np.percentile(v['worst'], 95):.1f}, max {v['worst'].max():.1f}; fits "
+                  f"{v['fits'].mean():.2f}, right size {v['right'].mean():.2f}, truth inside "
+                  f"{v['inside'].mean():.2f}; cycle median {np.median(v['cycle']):.1f} s, "
+                  f"p95 {np.percentile(v['cycle'], 95):.0f}, max {v['cycle'].max():.0f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folders", nargs="+")
+    parser.add_argument("--summary", action="store_true", help="summarise a replay's lines")
+    args = parser.parse_args()
+    if args.summary:
+        summary(args.folders[0])
+        return
+    for folder in args.folders:
+        print(json.dumps(replay(folder)), flush=True)
+    sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()
