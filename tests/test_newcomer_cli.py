@@ -313,6 +313,35 @@ def test_ctrl_c_twice_stops_a_benchmark_at_once_and_tells_how_to_resume(tmp_path
     _wait_for(group_gone, "the workers end")
 
 
+def test_sigterm_stops_a_benchmark_and_its_workers_as_ctrl_c_does(tmp_path):
+    """`kill PID` (a job scheduler's stop) reaches the benchmark's process alone: it must end
+    its workers and write what finished, not die and leave them running."""
+    out = tmp_path / "campaign"
+    proc = _lrnbv("benchmark", "--planners", "heu", "--objects", "horizontal_box", "--trials",
+                  "3", "--jobs", "2", "--out", str(out))
+    try:
+        _wait_for(lambda: any((out / "runs").glob("*")) or proc.poll() is not None,
+                  "an episode starts")
+        os.kill(proc.pid, signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=WAIT)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, stderr
+    assert "Resume with the same command" in stderr
+    finished = len(list((out / "episodes").glob("*.json")))
+    assert f"- episodes: {finished}, finished {finished}, failed 0" in \
+        (out / "summary.md").read_text()
+
+    def group_gone() -> bool:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            return True
+        return False
+
+    _wait_for(group_gone, "the workers end")
+
+
 # --- Help -------------------------------------------------------------------------------------
 
 

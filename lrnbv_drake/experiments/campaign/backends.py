@@ -5,7 +5,8 @@ campaign.
 
 Ctrl-C reaches this process only (the workers ignore it), and stops the episodes still running
 at once, however often it is pressed: their workers are terminated, and the next run of the
-command runs those episodes again.
+command runs those episodes again. SIGTERM (`kill`, a job scheduler's stop) does the same
+while local workers run, rather than end this process alone and leave them running.
 """
 
 from __future__ import annotations
@@ -82,6 +83,26 @@ def sigint_ignored() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
+@contextlib.contextmanager
+def sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt inside, as Ctrl-C does (Python's default ends the
+    process at once, with no cleanup). Workers spawned inside do not inherit the handler.
+    Signals are the main thread's: elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the cleanup
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def share_cores(jobs: int) -> None:
     """Gives this worker its share of the CPUs numba may use (those the process may run
     on), so that `jobs` workers side by side do not oversubscribe them."""
@@ -107,23 +128,25 @@ def _run_processes(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn
     pool = ProcessPoolExecutor(max_workers=config.jobs,
                                mp_context=multiprocessing.get_context("spawn"),
                                initializer=share_cores, initargs=(config.jobs,))
-    try:
-        # The workers start on submit: they ignore Ctrl-C, so that only this process hears it.
-        with sigint_ignored():
-            futures = {pool.submit(execute, ep, out_dir, episode_fn): ep for ep in todo}
-        for future in as_completed(futures):
-            try:
-                yield future.result()
-            except Exception as e:  # the worker died (e.g. a crash in native code)
-                yield failed_record(futures[future], f"{type(e).__name__}: {e}",
-                                    traceback.format_exc(), math.nan)
-    except BaseException:  # Ctrl-C, or the consumer stopped: end the running episodes now
-        with sigint_ignored():
-            # No public way before Python 3.14's terminate_workers().
-            for process in list((pool._processes or {}).values()):
-                process.terminate()
-            pool.shutdown(cancel_futures=True)
-        raise
+    with sigterm_interrupts():
+        try:
+            # The workers start on submit: they ignore Ctrl-C, so that only this process
+            # hears it.
+            with sigint_ignored():
+                futures = {pool.submit(execute, ep, out_dir, episode_fn): ep for ep in todo}
+            for future in as_completed(futures):
+                try:
+                    yield future.result()
+                except Exception as e:  # the worker died (e.g. a crash in native code)
+                    yield failed_record(futures[future], f"{type(e).__name__}: {e}",
+                                        traceback.format_exc(), math.nan)
+        except BaseException:  # Ctrl-C, SIGTERM, or the consumer stopped: end them now
+            with sigint_ignored():
+                # No public way before Python 3.14's terminate_workers().
+                for process in list((pool._processes or {}).values()):
+                    process.terminate()
+                pool.shutdown(cancel_futures=True)
+            raise
     pool.shutdown()
 
 
