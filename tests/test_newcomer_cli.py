@@ -4,6 +4,7 @@ exits 130 without a traceback, and the help says what each command does."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -325,7 +326,8 @@ def test_sigterm_stops_a_benchmark_and_its_workers_as_ctrl_c_does(tmp_path):
         os.kill(proc.pid, signal.SIGTERM)
         _, stderr = proc.communicate(timeout=WAIT)
     finally:
-        proc.kill()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)  # the workers too, should the test fail
     assert proc.returncode == 130, stderr
     assert "Resume with the same command" in stderr
     finished = len(list((out / "episodes").glob("*.json")))

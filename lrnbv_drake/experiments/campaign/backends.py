@@ -68,19 +68,24 @@ def failed_record(episode: Episode, error: str, trace: str, seconds: float) -> d
         "status": "failed", "error": error, "traceback": trace, "episode_seconds": seconds}}
 
 
+#: Ctrl-C and `kill`: what a cleanup must not be cut short by.
+INTERRUPTS = (signal.SIGINT, signal.SIGTERM)
+
+
 @contextlib.contextmanager
-def sigint_ignored() -> Iterator[None]:
-    """Ctrl-C is ignored inside, and by the processes started inside (an ignored signal stays
-    ignored across exec, and Python then installs no handler for it). Signals are the main
-    thread's: elsewhere this does nothing."""
+def signals_ignored(*signums: int) -> Iterator[None]:
+    """`signums` are ignored inside, and by the processes started inside (an ignored signal
+    stays ignored across exec, and Python then installs no handler for it). Signals are the
+    main thread's: elsewhere this does nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    previous = {signum: signal.signal(signum, signal.SIG_IGN) for signum in signums}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 @contextlib.contextmanager
@@ -93,7 +98,6 @@ def sigterm_interrupts() -> Iterator[None]:
         return
 
     def interrupt(signum: int, frame: object) -> None:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the cleanup
         raise KeyboardInterrupt
 
     previous = signal.signal(signal.SIGTERM, interrupt)
@@ -131,8 +135,8 @@ def _run_processes(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn
     with sigterm_interrupts():
         try:
             # The workers start on submit: they ignore Ctrl-C, so that only this process
-            # hears it.
-            with sigint_ignored():
+            # hears it (not SIGTERM: that is how they are ended).
+            with signals_ignored(signal.SIGINT):
                 futures = {pool.submit(execute, ep, out_dir, episode_fn): ep for ep in todo}
             for future in as_completed(futures):
                 try:
@@ -141,9 +145,10 @@ def _run_processes(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn
                     yield failed_record(futures[future], f"{type(e).__name__}: {e}",
                                         traceback.format_exc(), math.nan)
         except BaseException:  # Ctrl-C, SIGTERM, or the consumer stopped: end them now
-            with sigint_ignored():
-                # No public way before Python 3.14's terminate_workers().
-                for process in list((pool._processes or {}).values()):
+            with signals_ignored(*INTERRUPTS):
+                # Every child, not the pool's list: a worker being started when the
+                # interrupt came may not be in it yet (Python 3.14 has terminate_workers()).
+                for process in multiprocessing.active_children():
                     process.terminate()
                 pool.shutdown(cancel_futures=True)
             raise
@@ -177,7 +182,7 @@ def _run_ray(todo: Sequence[Episode], out_dir: Path, episode_fn: EpisodeFn,
                 yield failed_record(episode, f"{type(e).__name__}: {e}", traceback.format_exc(),
                                     math.nan)
     except BaseException:  # Ctrl-C, or the consumer stopped: end the running episodes now
-        with sigint_ignored():
+        with signals_ignored(*INTERRUPTS):
             for ref in pending:
                 ray.cancel(ref, force=True)
         raise

@@ -33,9 +33,10 @@ from pydrake.common.yaml import yaml_dump_typed
 from tqdm import tqdm
 
 from lrnbv_drake.experiments.campaign.backends import (
+    INTERRUPTS,
     EpisodeFn,
     backend,
-    sigint_ignored,
+    signals_ignored,
     simulate,
 )
 from lrnbv_drake.experiments.campaign.plan import (
@@ -182,8 +183,8 @@ def run_campaign(config: CampaignConfig, episode_fn: EpisodeFn = simulate,
                 bar.update()
     except KeyboardInterrupt:
         interrupted = True
-    # After Ctrl-C, a second one must not leave the outputs half written.
-    with sigint_ignored() if interrupted else contextlib.nullcontext():
+    # After Ctrl-C (or SIGTERM), a second one must not leave the outputs half written.
+    with signals_ignored(*INTERRUPTS) if interrupted else contextlib.nullcontext():
         write_outputs(*_whole_folder(config, episodes, records))
     if interrupted:
         finished = sum(records[ep.key]["campaign"]["status"] == "ok"
