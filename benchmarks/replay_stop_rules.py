@@ -1,15 +1,18 @@
-"""Recorded LR-NBV episodes replayed under stop rules that would end them sooner: the
-estimates pose by pose (`lrnbv refit`'s), each rule asked after each pose, and the box, its
-container and the cycle time up to the pose the rule stops at. The views before a stop do not
-depend on the stop rule, so an earlier stop on a recorded episode is the episode that rule
-would have run.
+"""Recorded LR-NBV episodes replayed with this tree's estimator under the product's stop and
+stop rules that would end them sooner: the estimates pose by pose (`lrnbv refit`'s), each
+rule asked after each pose, and the box, its container and the cycle time up to the pose the
+rule stops at (or the last recorded). The views before a stop do not depend on the stop rule
+or the estimate, so an earlier stop on a recorded episode is the episode that rule would have
+run; `box` against `recorded` is what a change of the estimator does to the same readings.
 
-Rules: `stalled1` (`stalled2`) stops once the box held still over the last pose, at least
-`min_poses` were taken, every dimension's interval is bounded (narrower than
+Rules: `box` is the product's (`planner.stop`, core/planning/stop.py). `stalled1`
+(`stalled2`) also stops once the box held still over the last pose, at least `min_poses`
+were taken, every dimension's interval is bounded (narrower than
 `estimation.interval_reach`) and each is narrower than `interval_width` or narrowed by less
 than `tolerance` over the last pose (each of the last two). Record 0026.
 
-    .venv/bin/python benchmarks/replay_stop_rules.py out/results/family/runs/lrnbv__* > replay.jsonl
+    .venv/bin/python benchmarks/replay_stop_rules.py [--max-estimate-seconds S] \
+        out/results/family/runs/lrnbv__* > replay.jsonl
     .venv/bin/python benchmarks/replay_stop_rules.py --summary replay.jsonl
 """
 
@@ -17,11 +20,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+from pathlib import Path
 
 import numpy as np
+import scipy.stats
 
 from lrnbv_drake.core.evaluation.packing import packing_metrics
+from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.experiments.refit import load_episode
 from lrnbv_drake.station.parts import container_catalogue, episode_estimator, packing_decision
 
@@ -50,7 +57,11 @@ def stalled(k: int):
     return rule
 
 
-RULES = {"stalled1": stalled(1), "stalled2": stalled(2)}
+def box(track, p, reach):
+    return BoxStop(p).update(track) is not None
+
+
+RULES = {"box": box, "stalled1": stalled(1), "stalled2": stalled(2)}
 
 
 def replay(folder: str) -> dict:
@@ -86,11 +97,23 @@ def replay(folder: str) -> dict:
     return out
 
 
+def against_recorded(found: list[dict]) -> str:
+    """The product's stop with this tree's estimator against the recorded episodes, paired."""
+    now, then = (np.array([r[k]["worst"] for r in found]) for k in ("box", "recorded"))
+    change = now - then
+    p = scipy.stats.wilcoxon(now, then).pvalue if np.any(np.abs(change) > 0.02) else 1.0
+    return (f"  box against recorded: {int(np.sum(np.abs(change) <= 0.02))} the same box, "
+            f"{int(np.sum(change < -1))} better and {int(np.sum(change > 1))} worse by more "
+            f"than 1 mm (Wilcoxon p = {p:.2f})")
+
+
 def summary(path: str) -> None:
     rows = [json.loads(line) for line in open(path)]
-    for group in sorted({r["folder"].split("/runs/")[0] for r in rows}):
-        found = [r for r in rows if r["folder"].startswith(group + "/runs/")]
+    groups = sorted({r["folder"].split("/runs/")[0] for r in rows})
+    for group in [*groups, "all"] if len(groups) > 1 else groups:
+        found = [r for r in rows if group == "all" or r["folder"].startswith(group + "/runs/")]
         print(f"{group} ({len(found)} episodes)")
+        print(against_recorded(found))
         for name in ("recorded", *RULES):
             v = {key: np.array([r[name][key] for r in found], float)
                  for key in ("poses", "worst", "fits", "right", "inside", "cycle")}
@@ -106,12 +129,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", nargs="+")
     parser.add_argument("--summary", action="store_true", help="summarise a replay's lines")
+    parser.add_argument("--max-estimate-seconds", type=float, default=math.inf,
+                        help="skip the episodes whose estimates took longer (report.json)")
     args = parser.parse_args()
     if args.summary:
         summary(args.folders[0])
         return
     for folder in args.folders:
-        print(json.dumps(replay(folder)), flush=True)
+        report = json.loads((Path(folder) / "report.json").read_text())
+        if sum(report["timing"]["box_estimate_s"]) <= args.max_estimate_seconds:
+            print(json.dumps(replay(folder)), flush=True)
     sys.stdout.flush()
 
 
