@@ -124,6 +124,18 @@ def test_a_zone_bundle_culls_only_boxes_none_of_its_sub_rays_meets():
     assert met > 0 and missed > 0  # zones both sides of the cull
 
 
+def test_a_sub_ray_that_sees_a_surface_before_a_region_does_not_cross_it():
+    """A ray from (-0.3, 0, 0.5) along (0.35, 0, -0.4) meets a top at z = 0.1 at t = 1 and
+    enters the slab 0.09 <= x <= 0.11 (0.1 tall) at t = 0.39 / 0.35 = 1.114, at z = 0.054:
+    it crosses the slab, but not before a depth of 1 (the top it sees), only before 1.2."""
+    rays = _rays([-0.3, 0, 0.5], [[0.35, 0, -0.4]])
+    slab = np.array([0.1, 0.0, 0.0, 0.02, 0.2, 0.1, 0, 0, 0])
+    assert rays.crossing(slab, 0.0)[0, 0]
+    assert not rays.crossing(slab, 0.0, before=np.array([[1.0]]))[0, 0]
+    assert rays.crossing(slab, 0.0, before=np.array([[1.2]]))[0, 0]
+    assert rays.crossing(slab, 0.0, before=np.array([[0.39 / 0.35]]))[0, 0]
+
+
 def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads():
     """`Problem.trials` (one kernel call for a grid of one coordinate, re-casting only the
     sub-rays the grid can change) gives each candidate's zone losses as `evaluate` of that
@@ -146,9 +158,15 @@ def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads()
     fit = problem.evaluate(shape)
     assert np.array_equal(alone.depths, fit.depths) and np.array_equal(alone.costs, fit.costs)
     near = np.arange(len(problem))
-    for k, coordinate, grid in ((0, 1, 0.004 * np.arange(-3, 4)), (0, 8, 0.15 * np.arange(7)),
-                                (1, 4, 0.004 * np.arange(-3, 4)), (1, 5, 0.1 * np.arange(-3, 4))):
-        xs = np.array([moved(shape.parts[k], coordinate, g) for g in grid])
+    boxed = box_shape(truth, 0.0)
+    # The last two: grids without the part as it is (a solid's candidates beyond the
+    # problem's region are dropped), a box's side and top moved inward only.
+    for trial, k, coordinate, grid in (
+            (shape, 0, 1, 0.004 * np.arange(-3, 4)), (shape, 0, 8, 0.15 * np.arange(7)),
+            (shape, 1, 4, 0.004 * np.arange(-3, 4)), (shape, 1, 5, 0.1 * np.arange(-3, 4)),
+            (boxed, 0, 1, 0.004 * np.arange(-6, -2)), (boxed, 0, 4, 0.004 * np.arange(-6, -2))):
+        fit = problem.evaluate(trial)
+        xs = np.array([moved(trial.parts[k], coordinate, g) for g in grid])
         runs, before = [], numba.get_num_threads()
         try:
             for threads in (1, numba.config.NUMBA_NUM_THREADS):
@@ -160,7 +178,7 @@ def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads()
         assert len(zones) > 0
         assert np.array_equal(zones, zones_all) and np.array_equal(losses, losses_all)
         for x, row in zip(xs, losses, strict=True):
-            alone = problem.evaluate(shape.with_part(k, x)).costs
+            alone = problem.evaluate(trial.with_part(k, x)).costs
             np.testing.assert_allclose(row, alone[zones], rtol=1e-12, atol=1e-12)
             # Every zone left out keeps its loss.
             others = np.setdiff1d(near, zones)

@@ -5,7 +5,8 @@ The objective is the soft-L1 sum of every fitted zone's residual in the model's 
 (`forward._loss`). Sub-ray sampling makes it piecewise constant in the parts' sides, so it is
 minimised by a coordinate grid search: each side, the top, the yaw and the rounding of each
 part in turn, every candidate of a grid in one kernel call that re-casts only the sub-rays
-crossing what the coordinate moves (the others' depths cannot change).
+that reach what the coordinate moves before the surface they see now (the others' depths
+cannot change).
 
 Which shape (a box, a rounded part, more parts, holes) is chosen by the Bayesian information
 criterion with the noise scale unknown, n ln(C / n) + k ln n for a cost C over n zones and k
@@ -130,33 +131,37 @@ class Problem:
         region[3:6] += 2 * grow
         return np.flatnonzero(self.rays.crossing(region, self.table - grow).any(axis=1))
 
-    def _moving(self, shape: Shape, k: int, coordinate: int, lo: float, hi: float,
+    def _moving(self, fit: Fit, k: int, coordinate: int, lo: float, hi: float,
                 near: np.ndarray) -> np.ndarray:
         """(len(near), m) the sub-rays of zones `near` a grid of part k's coordinate from
-        `lo` to `hi` can change: those crossing the slab a box's side or top sweeps, or all
-        of a rounded part's (its rounding scales with its sides), or of the disc its yaw
-        turns in."""
-        x, rays = shape.parts[k], self.rays
+        `lo` to `hi` can change: those that enter the region the grid sweeps (the slab a
+        box's side or top sweeps, all of a rounded part's box, as its rounding scales with
+        its sides, or the disc its yaw turns in) no farther than the depth they see now.
+        Every candidate is the part outside that region, so a surface seen in front of it
+        stays the first one seen. The region holds the part as it is too (a grid left with
+        only the candidates inside `region` may not hold it)."""
+        x, rays, shape = fit.shape.parts[k], self.rays, fit.shape
+        lo, hi = min(lo, 0.0), max(hi, 0.0)
         if coordinate in SIDES and not shape.rounded[k]:
             axis = 3 + coordinate // 2
             region = moved(moved(x, coordinate, hi), coordinate ^ 1, -(x[axis] + lo) + 1e-4)
-            return rays.crossing(region, self.table, near)
+            return rays.crossing(region, self.table, near, fit.depths)
         if coordinate == TOP and not shape.rounded[k]:
             region = x.copy()
             region[5] = hi - lo + 1e-4
-            return rays.crossing(region, self.table + x[5] + lo, near)
+            return rays.crossing(region, self.table + x[5] + lo, near, fit.depths)
         region = x.copy()
         if coordinate == YAW:
             region[3] = region[4] = math.hypot(x[3], x[4])
         elif coordinate <= TOP:
             region = moved(x, coordinate, max(hi, 0.0))
-        return rays.crossing(region, self.table, near)
+        return rays.crossing(region, self.table, near, fit.depths)
 
     def trials(self, fit: Fit, k: int, coordinate: int, xs: np.ndarray, lo: float, hi: float,
                near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(zones, losses): the zones (of `near`) a grid `xs` of part k's coordinate can
         change and their losses (len(xs), len(zones)) at each candidate."""
-        moving = self._moving(fit.shape, k, coordinate, lo, hi, near)
+        moving = self._moving(fit, k, coordinate, lo, hi, near)
         rows = np.flatnonzero(moving.any(axis=1))
         zones = near[rows]
         starts = np.r_[0, np.cumsum(moving[rows].sum(axis=1))]

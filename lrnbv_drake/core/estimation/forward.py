@@ -73,12 +73,13 @@ class ZoneRays:
         return ZoneRays(*(np.concatenate([getattr(p, f.name) for p in parts])
                           for f in dc.fields(ZoneRays)))
 
-    def crossing(self, x: np.ndarray, floor: float, rows: np.ndarray | None = None
-                 ) -> np.ndarray:
+    def crossing(self, x: np.ndarray, floor: float, rows: np.ndarray | None = None,
+                 before: np.ndarray | None = None) -> np.ndarray:
         """(len(rows), m) whether each sub-ray of zones `rows` (all if None) passes through
-        box x standing on z = floor (its rounding ignored)."""
+        box x standing on z = floor (its rounding ignored); with `before` (n, m), only where
+        it enters the box no farther than its depth `before[i, j]`."""
         rows = np.arange(len(self)) if rows is None else rows
-        return crossing(self.origins, self.directions, self.planes, rows, x, floor)
+        return crossing(self.origins, self.directions, self.planes, rows, x, floor, before)
 
 
 def bundle_planes(directions: np.ndarray) -> np.ndarray:
@@ -327,9 +328,11 @@ def _misses(o, planes, x, c, s, floor):
 
 
 @numba.njit(cache=True, parallel=True)
-def crossing(origins, directions, planes, rows, x, floor):
+def crossing(origins, directions, planes, rows, x, floor, before=None):
     """(len(rows), m) whether each sub-ray of zones `rows` passes through box x standing on
-    z = floor (its rounding ignored); a zone whose bundle misses the box is not cast."""
+    z = floor (its rounding ignored) and, with `before` (n, m) depths, enters it no farther
+    than `before[i, j]` (a millimetre's millionth of slack); a zone whose bundle misses the
+    box is not cast."""
     box = x.copy()
     box[6:] = 0.0
     c, s = math.cos(x[2]), math.sin(x[2])
@@ -341,6 +344,8 @@ def crossing(origins, directions, planes, rows, x, floor):
         for j in range(directions.shape[1]):
             t0, t1 = _interval(origins[i], directions[i, j], box, c, s, floor, NO_CLIP)
             out[r, j] = t0 <= t1 and t1 > 0.0
+            if before is not None:
+                out[r, j] = out[r, j] and t0 <= before[i, j] + 1e-9
     return out
 
 
