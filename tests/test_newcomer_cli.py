@@ -283,20 +283,42 @@ def test_an_interrupted_program_ignores_a_late_ctrl_c_and_a_caller_keeps_its_han
     assert done.stdout.split("\n")[:2] == ["130 False", "130 True"], done.stderr
 
 
-def test_ctrl_c_twice_stops_a_benchmark_at_once_and_tells_how_to_resume(tmp_path):
-    out = tmp_path / "campaign"
+def _group_gone(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def _benchmark_interrupted(out: Path, interrupt) -> tuple[subprocess.Popen[str], str]:
+    """A two-worker HEU benchmark into `out`, `interrupt(proc)` once an episode has started
+    in a worker (run_episode makes its folder first); the process and its stderr once it and
+    every worker have ended. Should anything fail, the whole group is killed."""
     proc = _lrnbv("benchmark", "--planners", "heu", "--objects", "horizontal_box", "--trials",
                   "3", "--jobs", "2", "--out", str(out))
     try:
-        # An episode has started in a worker (run_episode makes its folder first).
         _wait_for(lambda: any((out / "runs").glob("*")) or proc.poll() is not None,
                   "an episode starts")
-        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C reaches the whole foreground group
-        time.sleep(0.2)
-        os.killpg(proc.pid, signal.SIGINT)
+        interrupt(proc)
         _, stderr = proc.communicate(timeout=WAIT)
-    finally:
-        proc.kill()
+        _wait_for(lambda: _group_gone(proc.pid), "the workers end")
+    except BaseException:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        raise
+    return proc, stderr
+
+
+def _ctrl_c_twice(proc: subprocess.Popen[str]) -> None:
+    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C reaches the whole foreground group
+    time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGINT)
+
+
+def test_ctrl_c_twice_stops_a_benchmark_at_once_and_tells_how_to_resume(tmp_path):
+    out = tmp_path / "campaign"
+    proc, stderr = _benchmark_interrupted(out, _ctrl_c_twice)
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stderr
     assert "Resume with the same command" in stderr and str(out) in stderr
@@ -304,44 +326,17 @@ def test_ctrl_c_twice_stops_a_benchmark_at_once_and_tells_how_to_resume(tmp_path
     finished = len(list((out / "episodes").glob("*.json")))
     assert f"- episodes: {finished}, finished {finished}, failed 0" in summary
 
-    def group_gone() -> bool:
-        try:
-            os.killpg(proc.pid, 0)
-        except ProcessLookupError:
-            return True
-        return False
-
-    _wait_for(group_gone, "the workers end")
-
 
 def test_sigterm_stops_a_benchmark_and_its_workers_as_ctrl_c_does(tmp_path):
     """`kill PID` (a job scheduler's stop) reaches the benchmark's process alone: it must end
     its workers and write what finished, not die and leave them running."""
     out = tmp_path / "campaign"
-    proc = _lrnbv("benchmark", "--planners", "heu", "--objects", "horizontal_box", "--trials",
-                  "3", "--jobs", "2", "--out", str(out))
-    try:
-        _wait_for(lambda: any((out / "runs").glob("*")) or proc.poll() is not None,
-                  "an episode starts")
-        os.kill(proc.pid, signal.SIGTERM)
-        _, stderr = proc.communicate(timeout=WAIT)
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)  # the workers too, should the test fail
+    proc, stderr = _benchmark_interrupted(out, lambda proc: os.kill(proc.pid, signal.SIGTERM))
     assert proc.returncode == 130, stderr
     assert "Resume with the same command" in stderr
     finished = len(list((out / "episodes").glob("*.json")))
     assert f"- episodes: {finished}, finished {finished}, failed 0" in \
         (out / "summary.md").read_text()
-
-    def group_gone() -> bool:
-        try:
-            os.killpg(proc.pid, 0)
-        except ProcessLookupError:
-            return True
-        return False
-
-    _wait_for(group_gone, "the workers end")
 
 
 # --- Help -------------------------------------------------------------------------------------
