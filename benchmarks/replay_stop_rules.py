@@ -19,9 +19,9 @@ than `tolerance` over the last pose (each of the last two). Record 0026.
 from __future__ import annotations
 
 import argparse
+import dataclasses as dc
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -30,21 +30,13 @@ import scipy.stats
 from lrnbv_drake.core.evaluation.packing import packing_metrics
 from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.experiments.refit import load_episode
+from lrnbv_drake.experiments.report import against_truth
 from lrnbv_drake.station.parts import container_catalogue, episode_estimator, packing_decision
-
-
-def _held(track, p, k):
-    recent = track.estimates[-(k + 1):]
-    if (len(track.estimates) < max(p.min_poses, k + 1)
-            or any(e is None or e.interval is None for e in recent)):
-        return None
-    spread = np.ptp(np.array([e.box.dims for e in recent]), axis=0)
-    return recent if np.all(spread < p.tolerance) else None
 
 
 def stalled(k: int):
     def rule(track, p, reach):
-        recent = _held(track, p, max(k, p.stable_poses))
+        recent = BoxStop(dc.replace(p, stable_poses=max(k, p.stable_poses))).held_still(track)
         if recent is None:
             return False
         widths = [e.widths for e in recent]
@@ -83,14 +75,14 @@ def replay(folder: str) -> dict:
         for name, rule in RULES.items():
             if name in out or not (rule(track, p, reach) or i == n - 1):
                 continue
-            e = track.latest
-            decision = packing_decision(scenario, e)
+            decision = packing_decision(scenario, track.latest)
             fit = packing_metrics(decision, true.dims, container_catalogue(scenario)) \
                 if decision else {}
+            truth = against_truth(track.latest, true)
             out[name] = {
-                "poses": i + 1, "worst": float(np.max(np.abs(e.box.dims - true.dims))) * 1000,
+                "poses": i + 1, "worst": max(abs(v) for v in truth["dim_errors_mm"]),
                 "fits": fit.get("fits"), "right": fit.get("right_size"),
-                "inside": bool(np.all((e.dims_lower <= true.dims) & (true.dims <= e.dims_upper))),
+                "inside": all(truth["truth_in_interval"]),
                 "cycle": times[i] + sum(computing[:i + 1])}
         if all(name in out for name in RULES):
             break
@@ -139,7 +131,6 @@ def main() -> None:
         report = json.loads((Path(folder) / "report.json").read_text())
         if sum(report["timing"]["box_estimate_s"]) <= args.max_estimate_seconds:
             print(json.dumps(replay(folder)), flush=True)
-    sys.stdout.flush()
 
 
 if __name__ == "__main__":

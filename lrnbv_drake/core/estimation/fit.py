@@ -154,7 +154,7 @@ class Problem:
         if coordinate == YAW:
             region[3] = region[4] = math.hypot(x[3], x[4])
         elif coordinate <= TOP:
-            region = moved(x, coordinate, max(hi, 0.0))
+            region = moved(x, coordinate, hi)
         return rays.crossing(region, self.table, near, fit.depths)
 
     def trials(self, fit: Fit, k: int, coordinate: int, xs: np.ndarray, lo: float, hi: float,

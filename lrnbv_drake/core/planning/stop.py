@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lrnbv_drake.core.estimation.estimator import BoxEstimate
 from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.planning.config import StopParams
 
@@ -29,17 +30,23 @@ class BoxStop:
                              f"min_poses >= 1 and interval_width > 0; got {params}")
         self.params = params
 
-    def update(self, track: EstimateTrack) -> str | None:
-        """Why to stop after the last estimate of `track`, or None."""
+    def held_still(self, track: EstimateTrack) -> tuple[BoxEstimate, ...] | None:
+        """The last `stable_poses` + 1 estimates of `track` where at least `min_poses` were
+        taken and every dimension moved less than `tolerance` over them, else None."""
         p, estimates = self.params, track.estimates
         recent = estimates[-(p.stable_poses + 1):]
         if (len(estimates) < max(p.min_poses, p.stable_poses + 1)
                 or any(e is None or e.interval is None for e in recent)):
             return None
         spread = np.ptp(np.array([e.box.dims for e in recent]), axis=0)
+        return recent if np.all(spread < p.tolerance) else None
+
+    def update(self, track: EstimateTrack) -> str | None:
+        """Why to stop after the last estimate of `track`, or None."""
+        p, recent = self.params, self.held_still(track)
         # The interval is read only once the box has held still: it costs a profile of
         # every side and every class the readings fit as well.
-        if not (np.all(spread < p.tolerance) and np.all(recent[-1].widths <= p.interval_width)):
+        if recent is None or not np.all(recent[-1].widths <= p.interval_width):
             return None
         return (f"the box held still and is known: every dimension moved less than "
                 f"{1000 * p.tolerance:.0f} mm over the last "
