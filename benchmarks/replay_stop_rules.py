@@ -14,6 +14,9 @@ than `tolerance` over the last pose (each of the last two). Record 0026.
     .venv/bin/python benchmarks/replay_stop_rules.py [--max-estimate-seconds S] \
         [--rules box,stalled1,stalled2] out/results/family/runs/lrnbv__* > replay.jsonl
     .venv/bin/python benchmarks/replay_stop_rules.py --summary replay.jsonl
+
+Beside another job, prefix `NUMBA_NUM_THREADS=1`: the kernels' threads spinning against
+another process's made a replay about two hundred times slower here.
 """
 
 from __future__ import annotations
