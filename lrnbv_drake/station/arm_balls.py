@@ -1,10 +1,11 @@
 """The arm's balls (core/robot/sure_collision.py) from the plant's collision geometry.
 
-Each cylinder, capsule, sphere and box of a body that moves with the arm gets a row of balls
-along its axis, each inside the shape; each body is assigned the DH frame it rides on by
-comparing Drake's kinematics with the analytic chain at two configurations. The pairs are
-those the collision checker tests, with its padding; shapes of other kinds (a mesh) get no
-ball and are left to the exact check.
+Inner balls: each cylinder, capsule, sphere and box of a body that moves with the arm gets a
+row of balls along its axis, each inside the shape; shapes of other kinds (a mesh) get no ball
+and are left to the exact check. Outer balls: rows of balls whose union holds each shape, and a
+box around each shape of the cell. Each body is assigned the DH frame it rides on by comparing
+Drake's kinematics with the analytic chain at two configurations. The pairs are those the
+collision checker tests, with its padding.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import itertools
 import math
 
 import numpy as np
-from pydrake.geometry import Box, Capsule, Cylinder, Sphere
+from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Sphere
 from pydrake.multibody.tree import BodyIndex
 from pydrake.planning import SceneGraphCollisionChecker
 
@@ -23,8 +24,14 @@ from lrnbv_drake.core.robot.sure_collision import ArmBalls, arm_frames
 # does not ride on at both.
 _PROBES = (np.array([0.3, -1.1, 1.3, -0.7, 0.9, 0.4]),
            np.array([-0.8, -1.9, -1.0, 0.6, -1.4, 1.7]))
-# Margin under each reach, metres: the analytic and Drake's kinematics agree to ~1e-15 m.
+# Margin under each inner reach, metres: the analytic and Drake's kinematics agree to ~1e-15 m.
 _MARGIN = 1e-6
+# Margin over each outer reach, metres: also above the error of Drake's distance between two
+# shapes, which an iterative solver (GJK) computes for some pairs.
+_OUTER_MARGIN = 1e-4
+# How far an outer ball may stand out of a round shape's side, metres: thinner is tighter but
+# more balls.
+OUTER_SLACK = 0.004
 
 
 def _axis_balls(half_length: float, radius: float, axis: int) -> list[tuple[np.ndarray, float]]:
@@ -57,19 +64,86 @@ def _shape_balls(shape) -> list[tuple[np.ndarray, float]]:
     return []
 
 
-def build_arm_balls(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray) -> ArmBalls:
-    """The balls, boxes and pairs of `checker`'s robot and environment, `base` at X_W_base."""
+def _covering_balls(half_length: float, radius: float, axis: int, slack: float
+                    ) -> list[tuple[np.ndarray, float]]:
+    """Balls whose union holds the cylinder of `radius` and `half_length` along `axis`: each
+    holds a slice of it, standing at most `slack` out of its side."""
+    step = math.sqrt((radius + slack) ** 2 - radius ** 2)  # half a slice, at most
+    count = max(1, math.ceil(half_length / step))
+    a = half_length / count
+    balls = []
+    for t in np.linspace(a - half_length, half_length - a, count):
+        centre = np.zeros(3)
+        centre[axis] = t
+        balls.append((centre, math.hypot(radius, a)))
+    return balls
+
+
+def _vertices(shape) -> np.ndarray:
+    """(n, 3): the vertices of a mesh's convex hull, which Drake's distances use, in its frame."""
+    hull = shape.GetConvexHull()
+    return np.array([hull.vertex(i) for i in range(hull.num_vertices())])
+
+
+def _outer_shape_balls(shape, slack: float) -> list[tuple[np.ndarray, float]] | None:
+    """Balls whose union holds `shape`, in its own frame; None for a shape of another kind."""
+    if isinstance(shape, Cylinder):
+        return _covering_balls(shape.length() / 2, shape.radius(), 2, slack)
+    if isinstance(shape, Capsule):  # the caps: a ball of the radius at each end
+        ends = [(np.array([0.0, 0.0, z]), shape.radius()) for z in (-1, 1)]
+        return _covering_balls(shape.length() / 2, shape.radius(), 2, slack) + [
+            (c * shape.length() / 2, r) for c, r in ends]
+    if isinstance(shape, Sphere):
+        return [(np.zeros(3), shape.radius())]
+    if isinstance(shape, Box):  # the cylinder round its longest axis
+        half = np.array([shape.width(), shape.depth(), shape.height()]) / 2
+        axis = int(np.argmax(half))
+        return _covering_balls(half[axis], float(np.hypot(*np.delete(half, axis))), axis,
+                               slack)
+    if isinstance(shape, Convex | Mesh):
+        v = _vertices(shape)
+        centre = (v.min(axis=0) + v.max(axis=0)) / 2
+        return [(centre, float(np.max(np.linalg.norm(v - centre, axis=1))))]
+    return None
+
+
+def _outer_box(shape, X_W_G: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(X_B_W, half extents): a box B holding `shape` posed at X_W_G; None for a shape of
+    another kind. A mesh's box is upright, turned about z to the least area of its footprint
+    (the objects stand on the table)."""
+    if isinstance(shape, Box):
+        return np.linalg.inv(X_W_G), np.array([shape.width(), shape.depth(),
+                                               shape.height()]) / 2
+    if isinstance(shape, Cylinder | Capsule):
+        r, h = shape.radius(), shape.length() / 2
+        return np.linalg.inv(X_W_G), np.array([r, r, h + (r if isinstance(shape, Capsule)
+                                                          else 0.0)])
+    if isinstance(shape, Sphere | Ellipsoid):
+        half = np.full(3, shape.radius()) if isinstance(shape, Sphere) else \
+            np.array([shape.a(), shape.b(), shape.c()])
+        return np.linalg.inv(X_W_G), half
+    if isinstance(shape, Convex | Mesh):
+        v = (X_W_G[:3, :3] @ _vertices(shape).T).T + X_W_G[:3, 3]
+        turns = np.deg2rad(np.arange(0.0, 90.0, 0.5))
+        c, s = np.cos(turns)[:, None], np.sin(turns)[:, None]
+        u, w = c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1]  # (turns, n)
+        k = int(np.argmin(np.ptp(u, axis=1) * np.ptp(w, axis=1)))
+        X_W_B = np.eye(4)
+        X_W_B[:2, :2] = [[c[k, 0], -s[k, 0]], [s[k, 0], c[k, 0]]]
+        lo = np.array([u[k].min(), w[k].min(), v[:, 2].min()])
+        hi = np.array([u[k].max(), w[k].max(), v[:, 2].max()])
+        X_W_B[:3, 3] = X_W_B[:3, :3] @ ((lo + hi) / 2)
+        return np.linalg.inv(X_W_B), (hi - lo) / 2
+    return None
+
+
+def _robot_geometries(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray) -> list:
+    """(body, geometry, DH frame, X_frame_G 4x4, shape) of every collision geometry of the
+    robot; a body that rides on no DH frame gets frame None."""
     plant = checker.plant()
-    context = checker.plant_context()
     inspector = checker.model().scene_graph().model_inspector()
-    query = plant.get_geometry_query_input_port().Eval(context)
     robot = [plant.get_body(i) for mi in checker.robot_model_instances()
              for i in plant.GetBodyIndices(mi)]
-    robot_ids = {int(b.index()) for b in robot}
-    environment = [plant.get_body(BodyIndex(i)) for i in range(plant.num_bodies())
-                   if i not in robot_ids]
-
-    # Which DH frame each robot body rides on.
     poses = []
     for q in _PROBES:
         probe = plant.CreateDefaultContext()
@@ -77,44 +151,48 @@ def build_arm_balls(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray) -
         poses.append((arm_frames(q, X_W_base),
                       {b.index(): plant.EvalBodyPoseInWorld(probe, b).GetAsMatrix4()
                        for b in robot}))
-    balls = []  # (body, geometry, frame, centre in that frame, radius)
+    geometries = []
     for body in robot:
         X_i_B = [np.linalg.inv(frames) @ X_W[body.index()] for frames, X_W in poses]
         frame = next((i for i in range(7)
                       if np.allclose(X_i_B[0][i], X_i_B[1][i], atol=1e-9)), None)
-        if frame is None:
-            continue
         for geometry in plant.GetCollisionGeometriesForBody(body):
             X_BG = inspector.GetPoseInFrame(geometry).GetAsMatrix4()
-            for centre, radius in _shape_balls(inspector.GetShape(geometry)):
-                c = (X_i_B[0][frame] @ X_BG @ np.append(centre, 1.0))[:3]
-                balls.append((body, geometry, frame, c, radius))
+            geometries.append((body, geometry, frame,
+                               None if frame is None else X_i_B[0][frame] @ X_BG,
+                               inspector.GetShape(geometry)))
+    return geometries
 
-    boxes = []  # (body, geometry, X_G_W, half extents)
-    for body in environment:
-        for geometry in plant.GetCollisionGeometriesForBody(body):
-            shape = inspector.GetShape(geometry)
-            if isinstance(shape, Box):
-                X_W_G = query.GetPoseInWorld(geometry).GetAsMatrix4()
-                boxes.append((body, geometry, np.linalg.inv(X_W_G),
-                              np.array([shape.width(), shape.depth(), shape.height()]) / 2))
 
-    def tested(body_a, geometry_a, body_b, geometry_b) -> bool:
-        return not (checker.IsCollisionFilteredBetween(body_a, body_b)
-                    or inspector.CollisionFiltered(geometry_a, geometry_b))
+def _environment(checker: SceneGraphCollisionChecker) -> list:
+    """(body, geometry, shape, X_W_G 4x4) of every collision geometry not on the robot."""
+    plant = checker.plant()
+    inspector = checker.model().scene_graph().model_inspector()
+    query = plant.get_geometry_query_input_port().Eval(checker.plant_context())
+    return [(body, geometry, inspector.GetShape(geometry),
+             query.GetPoseInWorld(geometry).GetAsMatrix4())
+            for body in (plant.get_body(BodyIndex(i)) for i in range(plant.num_bodies()))
+            if not checker.IsPartOfRobot(body)
+            for geometry in plant.GetCollisionGeometriesForBody(body)]
 
+
+def _arm_balls(checker: SceneGraphCollisionChecker, balls: list, boxes: list, tested,
+               margin: float) -> ArmBalls:
+    """ArmBalls of `balls` (body, geometry, frame, centre, radius) and `boxes` (body,
+    geometry, X_B_W, half extents), the pairs `tested`, each reach the radii, the padding and
+    `margin`."""
     ball_box, ball_box_reach = [], []
     for (i, (body, geometry, _, _, radius)), (k, (env, box, _, _)) in itertools.product(
             enumerate(balls), enumerate(boxes)):
         if tested(body, geometry, env, box):
             ball_box.append((i, k))
-            ball_box_reach.append(radius + checker.GetPaddingBetween(body, env) - _MARGIN)
+            ball_box_reach.append(radius + checker.GetPaddingBetween(body, env) + margin)
     ball_ball, ball_ball_reach = [], []
     for (i, a), (j, b) in itertools.combinations(enumerate(balls), 2):
         if a[0].index() != b[0].index() and tested(a[0], a[1], b[0], b[1]):
             ball_ball.append((i, j))
             ball_ball_reach.append(a[4] + b[4] + checker.GetPaddingBetween(a[0], b[0])
-                                   - _MARGIN)
+                                   + margin)
     return ArmBalls(frame=[b[2] for b in balls],
                     centre=np.reshape([b[3] for b in balls], (-1, 3)),
                     radius=[b[4] for b in balls],
@@ -123,3 +201,81 @@ def build_arm_balls(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray) -
                     ball_box=np.reshape(ball_box, (-1, 2)), ball_box_reach=ball_box_reach,
                     ball_ball=np.reshape(ball_ball, (-1, 2)),
                     ball_ball_reach=ball_ball_reach)
+
+
+def build_arm_balls(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray) -> ArmBalls:
+    """The inner balls, boxes and pairs of `checker`'s robot and environment, `base` at
+    X_W_base: a pair the checker tests (neither its body filter nor SceneGraph's)."""
+    inspector = checker.model().scene_graph().model_inspector()
+    balls = [(body, geometry, frame, (X_i_G @ np.append(centre, 1.0))[:3], radius)
+             for body, geometry, frame, X_i_G, shape in _robot_geometries(checker, X_W_base)
+             if frame is not None for centre, radius in _shape_balls(shape)]
+    boxes = [(body, geometry, np.linalg.inv(X_W_G),
+              np.array([shape.width(), shape.depth(), shape.height()]) / 2)
+             for body, geometry, shape, X_W_G in _environment(checker)
+             if isinstance(shape, Box)]
+
+    def tested(body_a, geometry_a, body_b, geometry_b) -> bool:
+        return not (checker.IsCollisionFilteredBetween(body_a, body_b)
+                    or inspector.CollisionFiltered(geometry_a, geometry_b))
+    return _arm_balls(checker, balls, boxes, tested, -_MARGIN)
+
+
+def build_outer_balls(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray,
+                      slack: float = OUTER_SLACK) -> ArmBalls | None:
+    """The outer balls, boxes and pairs of `checker`'s robot and environment, `base` at
+    X_W_base: every pair of bodies the checker does not filter (SceneGraph's own filters may
+    only spare more). None where a shape cannot be held (a body off the arm's DH chain, a
+    shape of another kind): then no configuration is proved free."""
+    balls, boxes = [], []
+    for body, geometry, frame, X_i_G, shape in _robot_geometries(checker, X_W_base):
+        held = None if frame is None else _outer_shape_balls(shape, slack)
+        if held is None:
+            return None
+        balls += [(body, geometry, frame, (X_i_G @ np.append(centre, 1.0))[:3], radius)
+                  for centre, radius in held]
+    for body, geometry, shape, X_W_G in _environment(checker):
+        box = _outer_box(shape, X_W_G)
+        if box is None:
+            return None
+        boxes.append((body, geometry, *box))
+    clear = _always_clear(checker, X_W_base)
+
+    def tested(body_a, geometry_a, body_b, geometry_b) -> bool:
+        return not (checker.IsCollisionFilteredBetween(body_a, body_b)
+                    or frozenset((geometry_a, geometry_b)) in clear)
+    return _arm_balls(checker, balls, boxes, tested, _OUTER_MARGIN)
+
+
+def _round_about_z(shape, X_i_G: np.ndarray) -> bool:
+    """Whether `shape` posed at X_i_G in a DH frame is round about that frame's z axis (a
+    turn about it leaves the shape where it is)."""
+    on_axis = np.allclose(X_i_G[:2, 3], 0.0, atol=1e-9)
+    if isinstance(shape, Sphere):
+        return on_axis
+    return isinstance(shape, Cylinder | Capsule) and on_axis and \
+        abs(abs(X_i_G[2, 2]) - 1.0) < 1e-12
+
+
+def _always_clear(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray) -> set:
+    """The robot's geometry pairs whose distance no configuration changes, and which keep clear
+    of each other by more than their padding: pairs on the DH frames either side of one joint
+    of which one is round about the joint's axis (the wrist's housings and the sensor's mount,
+    coaxial with wrist 3, whose outer balls always overlap). Their distance is Drake's, once."""
+    geometries = [g for g in _robot_geometries(checker, X_W_base) if g[2] is not None]
+    q = _PROBES[0]
+    frames = arm_frames(q, X_W_base)
+    query = checker.plant().get_geometry_query_input_port().Eval(checker.UpdatePositions(q))
+    clear = set()
+    for a, b in itertools.combinations(geometries, 2):
+        (body_a, geometry_a, i, X_i_A, shape_a), (body_b, geometry_b, j, X_j_B, shape_b) = \
+            sorted((a, b), key=lambda g: g[2])
+        if j != i + 1 or checker.IsCollisionFilteredBetween(body_a, body_b):
+            continue
+        X_i_B = np.linalg.inv(frames[i]) @ frames[j] @ X_j_B  # joint j turns about z_i
+        if not (_round_about_z(shape_a, X_i_A) or _round_about_z(shape_b, X_i_B)):
+            continue
+        distance = query.ComputeSignedDistancePairClosestPoints(geometry_a, geometry_b).distance
+        if distance > checker.GetPaddingBetween(body_a, body_b) + _OUTER_MARGIN:
+            clear.add(frozenset((geometry_a, geometry_b)))
+    return clear

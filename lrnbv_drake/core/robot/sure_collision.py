@@ -20,6 +20,9 @@ import numpy as np
 
 from lrnbv_drake.core.robot.kinematics import _as_kernel_array, _dh, _mul_right
 
+#: What `settle` answers of a configuration.
+COLLIDES, FREE, UNSETTLED = 1, 0, -1
+
 
 @dc.dataclass(frozen=True)
 class ArmBalls:
@@ -67,10 +70,23 @@ def arm_frames(q: np.ndarray, X_W_base: np.ndarray) -> np.ndarray:
 def surely_colliding(Q: np.ndarray, X_W_base: np.ndarray, balls: ArmBalls) -> np.ndarray:
     """(n,) bool: which configurations Q (n, 6) certainly collide (a ball pair or a ball and a
     box overlap). False means only "not proved": ask the exact checker."""
-    b = balls
+    return settle(Q, X_W_base, balls) == COLLIDES
+
+
+def settle(Q: np.ndarray, X_W_base: np.ndarray, inner: ArmBalls,
+           outer: ArmBalls | None = None) -> np.ndarray:
+    """(n,) int8: for each configuration of Q (n, 6), COLLIDES where `inner`'s balls prove it
+    collides, FREE where every pair of `outer`'s (balls holding the geometry) keeps clear of
+    its reach, UNSETTLED otherwise (ask the exact checker). Without `outer`, nothing is FREE."""
+    o = inner if outer is None else outer
     return _kernel(_as_kernel_array(np.asarray(Q, float).reshape(-1, 6)),
-                   _as_kernel_array(X_W_base), b.frame, b.centre, b.box_from_world,
-                   b.box_half, b.ball_box, b.ball_box_reach, b.ball_ball, b.ball_ball_reach)
+                   _as_kernel_array(X_W_base), *_arguments(inner), *_arguments(o),
+                   outer is not None)
+
+
+def _arguments(b: ArmBalls) -> tuple[np.ndarray, ...]:
+    return (b.frame, b.centre, b.box_from_world, b.box_half, b.ball_box, b.ball_box_reach,
+            b.ball_ball, b.ball_ball_reach)
 
 
 @numba.njit(cache=True)
@@ -96,31 +112,53 @@ def _box_distance(p, X, half):
 
 
 @numba.njit(cache=True)
+def _place(frames, frame, centre, world):
+    """world (m, 3) = the balls' centres in world, their frames at `frames`."""
+    for b in range(len(frame)):
+        X = frames[frame[b]]
+        for r in range(3):
+            world[b, r] = (X[r, 0] * centre[b, 0] + X[r, 1] * centre[b, 1]
+                           + X[r, 2] * centre[b, 2] + X[r, 3])
+
+
+@numba.njit(cache=True)
+def _nearest(world, box_from_world, box_half, ball_box, ball_box_reach, ball_ball,
+             ball_ball_reach, overlap):
+    """With `overlap`: whether some pair is nearer than its reach; without: whether some
+    pair is not farther than its reach (the balls do not prove the configuration free)."""
+    for j in range(len(ball_box)):
+        b, k = ball_box[j, 0], ball_box[j, 1]
+        d = _box_distance(world[b], box_from_world[k], box_half[k])
+        if d < ball_box_reach[j] if overlap else d <= ball_box_reach[j]:
+            return True
+    for j in range(len(ball_ball)):
+        a, b = ball_ball[j, 0], ball_ball[j, 1]
+        d2 = ((world[a, 0] - world[b, 0]) ** 2 + (world[a, 1] - world[b, 1]) ** 2
+              + (world[a, 2] - world[b, 2]) ** 2)
+        r2 = ball_ball_reach[j] ** 2
+        if d2 < r2 if overlap else d2 <= r2:
+            return True
+    return False
+
+
+@numba.njit(cache=True)
 def _kernel(Q, X_W_base, frame, centre, box_from_world, box_half, ball_box, ball_box_reach,
-            ball_ball, ball_ball_reach):
+            ball_ball, ball_ball_reach, o_frame, o_centre, o_box_from_world, o_box_half,
+            o_ball_box, o_ball_box_reach, o_ball_ball, o_ball_ball_reach, prove_free):
     frames = np.empty((7, 4, 4))
     D = np.empty((4, 4))
     world = np.empty((len(frame), 3))
-    out = np.zeros(Q.shape[0], np.bool_)
+    o_world = np.empty((len(o_frame), 3))
+    out = np.full(Q.shape[0], UNSETTLED, np.int8)
     for n in range(Q.shape[0]):
         _frames(Q[n], X_W_base, frames, D)
-        for b in range(len(frame)):
-            X = frames[frame[b]]
-            for r in range(3):
-                world[b, r] = (X[r, 0] * centre[b, 0] + X[r, 1] * centre[b, 1]
-                               + X[r, 2] * centre[b, 2] + X[r, 3])
-        for j in range(len(ball_box)):
-            b, k = ball_box[j, 0], ball_box[j, 1]
-            if _box_distance(world[b], box_from_world[k], box_half[k]) < ball_box_reach[j]:
-                out[n] = True
-                break
-        if out[n]:
-            continue
-        for j in range(len(ball_ball)):
-            a, b = ball_ball[j, 0], ball_ball[j, 1]
-            d2 = ((world[a, 0] - world[b, 0]) ** 2 + (world[a, 1] - world[b, 1]) ** 2
-                  + (world[a, 2] - world[b, 2]) ** 2)
-            if d2 < ball_ball_reach[j] ** 2:
-                out[n] = True
-                break
+        _place(frames, frame, centre, world)
+        if _nearest(world, box_from_world, box_half, ball_box, ball_box_reach, ball_ball,
+                    ball_ball_reach, True):
+            out[n] = COLLIDES
+        elif prove_free:
+            _place(frames, o_frame, o_centre, o_world)
+            if not _nearest(o_world, o_box_from_world, o_box_half, o_ball_box,
+                            o_ball_box_reach, o_ball_ball, o_ball_ball_reach, False):
+                out[n] = FREE
     return out
