@@ -27,9 +27,9 @@ from pydrake.trajectories import PiecewisePolynomial
 from lrnbv_drake.core.robot import kinematics
 from lrnbv_drake.core.robot.motion import MotionFailure, MotionPlan
 from lrnbv_drake.core.robot.poses import look_at
-from lrnbv_drake.core.robot.sure_collision import surely_colliding
+from lrnbv_drake.core.robot.sure_collision import FREE, UNSETTLED, settle
 from lrnbv_drake.core.sensing.sensor import ROLL_STEPS_DEG, ROLL_STEPS_TEXT
-from lrnbv_drake.station.arm_balls import build_arm_balls
+from lrnbv_drake.station.arm_balls import build_arm_balls, build_outer_balls
 from lrnbv_drake.station.cell_models import add_cell_models, fixed_pose, sensor_on_tool0
 from lrnbv_drake.station.resources import make_robot_diagram_builder
 from lrnbv_drake.station.scenario import Scenario
@@ -118,9 +118,11 @@ class MotionPlanner:
         finally:
             drake_log.setLevel(level)
         self.X_W_base = fixed_pose(plant, "world", "base").GetAsMatrix4()
-        # Balls inside the arm's geometry: most colliding configurations are rejected by them
-        # in a microsecond before the exact check (core/robot/sure_collision.py).
+        # Balls inside the arm's geometry reject most colliding configurations, balls holding
+        # it pass most free ones, in microseconds before the exact check
+        # (core/robot/sure_collision.py).
         self._balls = build_arm_balls(self._checker, self.X_W_base)
+        self._outer_balls = build_outer_balls(self._checker, self.X_W_base)
         self.X_tool0_S = sensor_on_tool0(plant, scenario).GetAsMatrix4()
         self._X_base_W = np.linalg.inv(self.X_W_base)
         self._X_S_tool0 = np.linalg.inv(self.X_tool0_S)
@@ -168,8 +170,9 @@ class MotionPlanner:
     def collision_free(self, q: np.ndarray) -> bool:
         """Whether configuration q keeps the robot clear of the cell and of itself."""
         q = np.asarray(q, float)
-        if surely_colliding(q, self.X_W_base, self._balls)[0]:
-            return False
+        settled = settle(q, self.X_W_base, self._balls, self._outer_balls)[0]
+        if settled != UNSETTLED:
+            return bool(settled == FREE)
         return bool(self._checker.CheckConfigCollisionFree(q))
 
     def near_robot(self, q: np.ndarray, points: np.ndarray, padding: float) -> np.ndarray:
