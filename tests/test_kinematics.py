@@ -159,6 +159,44 @@ def test_closest_solution_constructed():
     np.testing.assert_array_equal(q, q_current)
 
 
+def test_ranked_solutions_constructed():
+    """Solutions at their nearest equivalents, the valid ones by the slowest joint's time,
+    ties in their order; an invalid one last whatever its time."""
+    q_current = np.array([3.1, -2.0, 0.0, 0.0, 0.0, 0.0])
+    Q = np.zeros((1, 4, 6))
+    Q[0, :, 1] = -2.0
+    Q[0, 0, 0] = -3.0  # 0.1832 rad away the short way round (+2 pi): 0.0583 s at pi rad/s
+    Q[0, 1, 5] = 0.3   # 0.3 rad: 0.0955 s
+    Q[0, 2, 0] = 3.0   # 0.1 rad, but not a solution
+    Q[0, 3, 5] = -0.3  # ties with the second
+    ok = np.array([[True, True, False, True]])
+    ranked, n = kin.ranked_solutions(Q, ok, q_current, np.full(6, np.pi))
+    assert n.tolist() == [3]
+    np.testing.assert_allclose(ranked[0, 0, 0], -3.0 + 2 * np.pi)
+    np.testing.assert_array_equal(ranked[0, 1:, 5], [0.3, -0.3, 0.0])
+    np.testing.assert_array_equal(ranked[0, 3, 0], 3.0)
+
+
+def test_ranked_solutions_are_numpys_bit_for_bit():
+    """The kernel against what the planner did in numpy: the same bits, every pose."""
+    rng = np.random.default_rng(4)
+    velocity = np.array([1.0, 1.0, 1.5, 2.0, 2.0, 2.0]) * np.pi
+    for trial in range(100):
+        X = kin.forward_kinematics(rng.uniform(-np.pi, np.pi, (int(rng.integers(1, 40)), 6)))
+        X[::3, :3, 3] *= 1.5  # some out of reach
+        Q, ok = kin.inverse_kinematics(X)
+        q_current = rng.uniform(-2 * np.pi, 2 * np.pi, 6)
+        if trial % 4 == 0:  # ties, and joints a multiple of pi away
+            Q[:, 4:] = Q[:, :4]
+            q_current = np.round(q_current / np.pi) * np.pi
+        near = kin.nearest_equivalents(Q, q_current)
+        cost = np.where(ok, np.max(np.abs(near - q_current) / velocity, axis=-1), np.inf)
+        order = np.argsort(cost, axis=1, kind="stable")
+        ranked, n = kin.ranked_solutions(Q, ok, q_current, velocity)
+        assert ranked.tobytes() == near[np.arange(len(Q))[:, None], order].tobytes()
+        np.testing.assert_array_equal(n, ok.sum(axis=1))
+
+
 def test_urdf_limits_match_constants(station):
     plant = station[0]
     np.testing.assert_array_equal(plant.GetPositionLowerLimits(), kin.JOINT_LOWER)

@@ -197,11 +197,9 @@ class MotionPlanner:
         X_base_tool0 = self._X_base_W @ (X_WS[:, None] @ self._rolls) @ self._X_S_tool0
         Q, ok = kinematics.inverse_kinematics(X_base_tool0.reshape(-1, 4, 4))
         per_pose = Q.shape[1] * len(self._rolls)
-        Q = kinematics.nearest_equivalents(Q.reshape(len(X_WS), per_pose, 6), q_current)
-        ok = ok.reshape(len(X_WS), per_pose)
-        cost = np.where(ok, np.max(np.abs(Q - q_current) / self.max_velocity, axis=-1), np.inf)
-        order = np.argsort(cost, axis=1, kind="stable")
-        return Q[np.arange(len(Q))[:, None], order], ok.sum(axis=1)
+        return kinematics.ranked_solutions(Q.reshape(len(X_WS), per_pose, 6),
+                                           ok.reshape(len(X_WS), per_pose), q_current,
+                                           self.max_velocity)
 
     def ik(self, X_WS: np.ndarray, q_current: np.ndarray) -> np.ndarray:
         """All IK solutions for sensor pose X_WS and its allowed rolls about the optical axis,
