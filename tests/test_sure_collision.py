@@ -17,6 +17,7 @@ from lrnbv_drake.core.robot.sure_collision import (
     UNSETTLED,
     ArmBalls,
     arm_frames,
+    first_unrejected,
     settle,
     surely_colliding,
 )
@@ -134,6 +135,32 @@ def test_two_outer_balls_prove_free_exactly_when_their_centres_are_beyond_the_re
         assert settle(kinematics.HOME, np.eye(4), _NO_BALLS, outer)[0] == settled
 
 
+def test_the_first_configuration_not_rejected_is_where_settle_first_does_not_say_collides():
+    # A ball on `base` (the world here) at the origin of the box |x|, |y|, |z| <= 0.1 m, and
+    # a ball on `tool0`: the first rejects every configuration; with the second's reach
+    # below its distance to the box, the outer ball proves free any configuration.
+    X_W_base = np.eye(4)
+    inner = _one_ball_and_a_box([0.0, 0.0, 0.0], 0.05)
+    Q = np.tile(kinematics.HOME, (3, 1))
+    assert first_unrejected(Q, X_W_base, inner) == (3, COLLIDES)
+    assert first_unrejected(Q[:0], X_W_base, inner) == (0, COLLIDES)
+    far = _one_ball_and_a_box([0.0, 0.0, 0.0], -1.0)  # rejects nothing
+    assert first_unrejected(Q, X_W_base, far) == (0, UNSETTLED)
+    d = _box_distance_of_tool0(kinematics.HOME)
+    outer = ArmBalls(frame=[6], centre=np.zeros((1, 3)), radius=[0.0],
+                     box_from_world=[np.eye(4)], box_half=[[0.1, 0.1, 0.1]], ball_box=[[0, 0]],
+                     ball_box_reach=[d - 1e-3], ball_ball=np.zeros((0, 2)), ball_ball_reach=[])
+    assert first_unrejected(Q, X_W_base, far, outer) == (0, FREE)
+    assert first_unrejected(Q, X_W_base, inner, outer) == (3, COLLIDES)  # inner first
+
+
+def _box_distance_of_tool0(q) -> float:
+    """The distance from `tool0`'s origin at q (`base` at the world) to the box |x|, |y|,
+    |z| <= 0.1 m."""
+    p = kinematics.forward_kinematics(q)[:3, 3]
+    return float(np.linalg.norm(np.maximum(np.abs(p) - 0.1, 0.0)))
+
+
 @pytest.fixture(scope="module")
 def outer(planner):
     outer = build_outer_balls(planner._checker, planner.X_W_base)
@@ -207,6 +234,9 @@ def test_no_colliding_configuration_is_proved_free_and_most_free_ones_are(planne
         assert not np.any((settled == COLLIDES) & free)
         assert np.sum(settled == FREE) >= proved * free.sum()
         assert [planner.collision_free(q) for q in Q[:300]] == free[:300].tolist()
+        for rows in np.array_split(np.arange(len(Q)), len(Q) // 4):  # a view's solutions
+            assert planner.first_free(Q[rows]) == next(
+                (j for j, r in enumerate(rows) if free[r]), -1)
 
 
 def test_the_pairs_left_out_keep_the_same_distance_in_every_configuration(planner):

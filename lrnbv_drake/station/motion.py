@@ -27,7 +27,13 @@ from pydrake.trajectories import PiecewisePolynomial
 from lrnbv_drake.core.robot import kinematics
 from lrnbv_drake.core.robot.motion import MotionFailure, MotionPlan
 from lrnbv_drake.core.robot.poses import look_at
-from lrnbv_drake.core.robot.sure_collision import FREE, UNSETTLED, settle
+from lrnbv_drake.core.robot.sure_collision import (
+    COLLIDES,
+    FREE,
+    UNSETTLED,
+    first_unrejected,
+    settle,
+)
 from lrnbv_drake.core.sensing.sensor import ROLL_STEPS_DEG, ROLL_STEPS_TEXT
 from lrnbv_drake.station.arm_balls import build_arm_balls, build_outer_balls
 from lrnbv_drake.station.cell_models import add_cell_models, fixed_pose, sensor_on_tool0
@@ -174,6 +180,20 @@ class MotionPlanner:
         if settled != UNSETTLED:
             return bool(settled == FREE)
         return bool(self._checker.CheckConfigCollisionFree(q))
+
+    def first_free(self, Q: np.ndarray) -> int:
+        """The index of the first collision-free configuration of Q (k, 6), -1 if none: what
+        `collision_free` on each in turn finds, the balls' part in one kernel call."""
+        Q = np.asarray(Q, float).reshape(-1, 6)
+        start = 0
+        while True:
+            i, settled = first_unrejected(Q[start:], self.X_W_base, self._balls,
+                                          self._outer_balls)
+            if settled == COLLIDES:
+                return -1
+            if settled == FREE or self._checker.CheckConfigCollisionFree(Q[start + i]):
+                return start + i
+            start += i + 1
 
     def near_robot(self, q: np.ndarray, points: np.ndarray, padding: float) -> np.ndarray:
         """(n,) bool: which world points (n, 3) lie within `padding` of the arm's collision

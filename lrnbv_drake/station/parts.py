@@ -212,7 +212,8 @@ def make_policy(planner: str, scenario: Scenario, motion: MotionPlanner,
             table_height=cell.table_height, seed=scenario.seed, variant=planner,
             travel_time=motion.travel_time, first_view=first,
             capture_seconds=seconds_at_a_view(scenario.sensor.period,
-                                              scenario.sensor.settle_frames))
+                                              scenario.sensor.settle_frames),
+            first_free=motion.first_free)
     raise ValueError(f"unknown planner '{planner}': expected one of "
                      f"{', '.join(SIMULATION_PLANNERS)}")
 

@@ -75,12 +75,15 @@ class LrNbvPolicy(ViewpointPolicy):
             before any frame is taken; None: the first frame is taken at the start pose.
         capture_seconds: what a pose costs besides the motion (settling, the frame, the map),
             which the box utility adds to the travel time it divides by.
+        first_free: the index of the first collision-free configuration of Q (k, 6), -1 if
+            none, in one call (`Reach.first_free`); None: `collision_free` on each in turn.
     """
 
     def __init__(self, params: PlannerParams, geometry: ZoneGeometry, workspace: AlignedBox,
                  ik, collision_free, table_height: float = 0.0, seed: int = 0,
                  variant: str = "lrnbv", travel_time=None,
-                 first_view: np.ndarray | None = None, capture_seconds: float = 0.0):
+                 first_view: np.ndarray | None = None, capture_seconds: float = 0.0,
+                 first_free=None):
         if variant not in ("lrnbv", "nbv"):
             raise ValueError(f"unknown variant '{variant}': expected 'lrnbv' or 'nbv'")
         if params.travel_discount < 0 or (params.travel_discount > 0 and travel_time is None):
@@ -105,6 +108,7 @@ class LrNbvPolicy(ViewpointPolicy):
         self.workspace = workspace
         self.ik = ik
         self.collision_free = collision_free
+        self.first_free = first_free
         self.travel_time = travel_time
         self._q = np.zeros(6)  # where the arm is, for the travel discount
         self.table_height = table_height
@@ -249,7 +253,7 @@ class LrNbvPolicy(ViewpointPolicy):
             return self._propose_first_view()
 
         q = self._q = np.asarray(observation.q, float)
-        reach = Reach(lambda poses: self.ik(poses, q), self.collision_free)
+        reach = Reach(lambda poses: self.ik(poses, q), self.collision_free, self.first_free)
         roi, object_points, center = self.roi(observation.extraction)
         snapshot = make_snapshot(observation.occupancy, roi, object_points, center,
                                  self.params.gains.density_radius,

@@ -27,10 +27,19 @@ Scorer = Callable[[np.ndarray], tuple[Gains, np.ndarray]]
 class Reach:
     """How the robot reaches a view: IK solutions of many sensor poses (N, 4, 4) at once, as
     (Q, n) with pose i's n[i] solutions best first in Q[i, :n[i]] (Q (N, k, 6)), and whether a
-    joint configuration is collision free."""
+    joint configuration is collision free. `first_free`, where given, finds in one call the
+    index of the first collision-free configuration of Q (k, 6), -1 if none: what
+    `collision_free` on each in turn finds."""
 
     ik: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
     collision_free: Callable[[np.ndarray], bool]
+    first_free: Callable[[np.ndarray], int] | None = None
+
+    def first(self, Q: np.ndarray) -> int:
+        """The index of the first collision-free configuration of Q (k, 6), -1 if none."""
+        if self.first_free is not None:
+            return self.first_free(Q)
+        return next((j for j, q in enumerate(Q) if self.collision_free(q)), -1)
 
 
 @dc.dataclass
@@ -149,9 +158,9 @@ def expand_tree(tree: ViewTree | np.ndarray, n: int,
                                               kind="stable").tolist()):
             for k in ranked:
                 i = b * A + k
-                free = next((q for q in solutions[i, :n_solutions[i]]
-                             if reach.collision_free(q)), None)
-                if free is not None:
+                j = reach.first(solutions[i, :n_solutions[i]]) if n_solutions[i] else -1
+                if j >= 0:
+                    free = solutions[i, j]
                     j = int(index_in_scored[i])
                     tree.poses.append(poses[b, k])
                     tree.parents.append(int(nearest[b]))

@@ -81,7 +81,22 @@ def settle(Q: np.ndarray, X_W_base: np.ndarray, inner: ArmBalls,
     o = inner if outer is None else outer
     return _kernel(_as_kernel_array(np.asarray(Q, float).reshape(-1, 6)),
                    _as_kernel_array(X_W_base), *_arguments(inner), *_arguments(o),
-                   outer is not None)
+                   outer is not None, False)
+
+
+def first_unrejected(Q: np.ndarray, X_W_base: np.ndarray, inner: ArmBalls,
+                     outer: ArmBalls | None = None) -> tuple[int, int]:
+    """(i, `settle`'s answer FREE or UNSETTLED) for the first configuration Q[i] of Q (n, 6)
+    the inner balls do not reject, or (n, COLLIDES) if they reject all; settles no further.
+    One call for a view's IK solutions, best first, of which the planner takes the first free:
+    a call per configuration cost more in overhead than the balls."""
+    Q = _as_kernel_array(np.asarray(Q, float).reshape(-1, 6))
+    if len(Q) == 0:
+        return 0, COLLIDES
+    o = inner if outer is None else outer
+    codes = _kernel(Q, _as_kernel_array(X_W_base), *_arguments(inner), *_arguments(o),
+                    outer is not None, True)
+    return (len(Q), COLLIDES) if codes[-1] == COLLIDES else (len(codes) - 1, int(codes[-1]))
 
 
 def _arguments(b: ArmBalls) -> tuple[np.ndarray, ...]:
@@ -144,7 +159,8 @@ def _nearest(world, box_from_world, box_half, ball_box, ball_box_reach, ball_bal
 @numba.njit(cache=True)
 def _kernel(Q, X_W_base, frame, centre, box_from_world, box_half, ball_box, ball_box_reach,
             ball_ball, ball_ball_reach, o_frame, o_centre, o_box_from_world, o_box_half,
-            o_ball_box, o_ball_box_reach, o_ball_ball, o_ball_ball_reach, prove_free):
+            o_ball_box, o_ball_box_reach, o_ball_ball, o_ball_ball_reach, prove_free, stop):
+    """`settle`'s answers; with `stop`, only those up to the first not COLLIDES."""
     frames = np.empty((7, 4, 4))
     D = np.empty((4, 4))
     world = np.empty((len(frame), 3))
@@ -161,4 +177,6 @@ def _kernel(Q, X_W_base, frame, centre, box_from_world, box_half, ball_box, ball
             if not _nearest(o_world, o_box_from_world, o_box_half, o_ball_box,
                             o_ball_box_reach, o_ball_ball, o_ball_ball_reach, False):
                 out[n] = FREE
+        if stop and out[n] != COLLIDES:
+            return out[:n + 1]
     return out
