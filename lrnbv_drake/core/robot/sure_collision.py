@@ -1,14 +1,18 @@
-"""Configurations that surely collide, without Drake: balls inside the arm's collision
-geometry, tested against the cell's boxes and against each other.
+"""Configurations that surely collide, or are surely free, without Drake: balls inside the
+arm's collision geometry, and balls holding it, tested against boxes and against each other.
 
 About half the IK solutions a planning iteration checks collide, and SceneGraph's exact check
 of a colliding configuration takes about three times as long as of a free one. A ball that lies
 inside a link's geometry and reaches into the table, or into a ball of another link the checker
 does not filter, proves the collision in a microsecond: two shapes' signed distance is at most
-that of any two balls inside them. So `surely_colliding` only ever answers "collides"; every
-configuration it does not reject still goes to the exact check, and the planner's answers do
-not change (station/motion.py builds the balls from the plant's geometry;
-tests/test_sure_collision.py checks them against SceneGraph).
+that of any two balls inside them. The dual proves a configuration free: where every ball of a
+set whose union holds each link keeps clear, by more than the checker's padding, of a box
+holding each shape of the cell and of every ball of each link the checker tests it against,
+every pair of shapes does, and the exact check would say free. Nine in ten of the
+configurations the inner balls leave are free, and the outer balls pass nearly all of them. So
+`settle` answers "collides", "free" or "ask the exact checker", never wrongly, and the
+planner's answers do not change (station/arm_balls.py builds the balls from the plant's
+geometry; tests/test_sure_collision.py checks them against SceneGraph).
 """
 
 from __future__ import annotations
@@ -26,7 +30,9 @@ COLLIDES, FREE, UNSETTLED = 1, 0, -1
 
 @dc.dataclass(frozen=True)
 class ArmBalls:
-    """Balls inside the arm's collision geometry and what each must keep clear of."""
+    """Balls inside (or holding) the arm's collision geometry and what each must keep clear
+    of. Inner balls: a pair nearer than its reach proves a collision. Outer balls: every pair
+    farther than its reach proves the configuration free."""
 
     # (m,) int: the DH frame each ball rides on, 0 the controller's `base`, i the frame after
     # joint i (6 is `tool0`).
@@ -39,13 +45,14 @@ class ArmBalls:
     box_from_world: np.ndarray
     # (k, 3): each box's half extents, metres.
     box_half: np.ndarray
-    # (p, 2) int: (ball, box) pairs; the configuration collides where the ball's centre lies
-    # nearer its box than `ball_box_reach` (signed distance, negative inside).
+    # (p, 2) int: (ball, box) pairs; the ball reaches the box where its centre lies nearer
+    # the box than `ball_box_reach` (signed distance, negative inside).
     ball_box: np.ndarray
-    # (p,): the ball's radius plus the checker's padding of the pair, metres.
+    # (p,): the ball's radius plus the checker's padding of the pair, metres (and a margin:
+    # less for inner balls, more for outer).
     ball_box_reach: np.ndarray
-    # (s, 2) int: ball pairs on bodies the checker tests against each other; the configuration
-    # collides where their centres are nearer than `ball_ball_reach`.
+    # (s, 2) int: ball pairs on bodies the checker tests against each other; they reach each
+    # other where their centres are nearer than `ball_ball_reach`.
     ball_ball: np.ndarray
     # (s,): the two radii plus the checker's padding of the pair, metres.
     ball_ball_reach: np.ndarray
