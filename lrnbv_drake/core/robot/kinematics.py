@@ -292,7 +292,8 @@ def compile_kernels() -> None:
     """Compiles the kinematics kernels into numba's on-disk cache: cold, the first IK of every
     process (the first planning iteration) would wait seconds for them. `make` runs this after
     installing (`python -m lrnbv_drake.core.kernels`)."""
-    inverse_kinematics(forward_kinematics(HOME))
+    Q, ok = inverse_kinematics(forward_kinematics(HOME)[None])
+    ranked_solutions(Q, ok, HOME, VELOCITY_LIMIT)
 
 
 def nearest_equivalents(
