@@ -17,7 +17,7 @@ from lrnbv_drake.core.estimation.fit import Problem
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.interval import intervals, slice_bounds
 from lrnbv_drake.core.estimation.params import EstimationParams
-from lrnbv_drake.core.estimation.shape import Shape, box_shape, moved
+from lrnbv_drake.core.estimation.shape import ROUNDINGS, Shape, box_shape, moved
 from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 from lrnbv_drake.station.parts import sensor_behaviour
@@ -259,19 +259,49 @@ def test_a_device_the_model_does_not_explain_is_flagged_and_its_interval_widens(
     assert np.all((off.dims_lower <= true_dims) & (true_dims <= off.dims_upper))
 
 
-def test_the_interval_holds_a_class_the_readings_fit_as_well():
-    """Rendered readings of a can fitted as a box (the class held): the box's own slice of
-    the cost misses the can's size on every dimension, while the interval over the shapes
-    whose cost lies within the same rise, the can's part re-classed among them, holds it."""
+@pytest.fixture(scope="module")
+def can_as_box():
+    """Rendered readings of a can, its fitted problem, the can fitted as a box (the class
+    held) and the true box."""
     frames, truth, model = render("{object: {name: can}}")
     scenario = load_scenario(data="{object: {name: can}}")
     rays = ZoneRays.concatenate([zone_rays(f, X, model) for f, X in frames], 64)
     problem = Problem(rays, 0.0, np.array(scenario.cell.table_extent),
                       ReadingRule.of(model, sensor_behaviour(scenario)), 2.0, 5.0, 0.0005)
     as_box = problem.refine(problem.evaluate(box_shape(_cell_like(truth), 0.0)), 0.03)
+    return problem, as_box, truth
+
+
+def test_the_interval_holds_a_class_the_readings_fit_as_well(can_as_box):
+    """The can fitted as a box: the box's own slice of the cost misses the can's size on
+    every dimension, while the interval over the shapes whose cost lies within the same
+    rise, the can's part re-classed among them, holds it."""
+    problem, as_box, truth = can_as_box
     assert not as_box.shape.rounded[0]
 
     def holds(bounds):
         return (bounds[0] <= truth.dims) & (truth.dims <= bounds[1])
     assert not np.any(holds(slice_bounds(problem, as_box, 2.71, 0.1, 0.002)))
     assert np.all(holds(intervals(problem, as_box, 2.71, 0.1, 0.002)))
+
+
+def test_the_interval_rises_from_the_lowest_cost_found(can_as_box):
+    """The upright cylinder explains the can's readings better than the box fit by more than
+    the rise, so the box gets no rise of its own: the interval is the cylinder's slice at the
+    full rise (not at the rise plus the box's excess), with the box's own dimensions held;
+    and the interval says the criterion would not keep the box, while it keeps the
+    cylinder."""
+    problem, as_box, _ = can_as_box
+    cylinder = problem.reclassed(as_box, 0, (1.0, 1.0, 0.0), 0.01)
+    others = [problem.reclassed(as_box, 0, r, 0.01) for r in ROUNDINGS]
+    assert cylinder.cost == min(o.cost for o in others)
+    assert cylinder.cost < as_box.cost - 2.71
+    dims = as_box.shape.box(0.0).dims
+    low, high = slice_bounds(problem, cylinder, 2.71, 0.1, 0.002)
+    lower, upper, chosen = intervals(problem, as_box, 2.71, 0.1, 0.002)
+    np.testing.assert_array_equal(lower, np.minimum(low, dims - 0.002))
+    np.testing.assert_array_equal(upper, np.maximum(high, dims + 0.002))
+    # Cheaper by more than the rounding's price: the criterion would choose the cylinder.
+    assert problem.score(cylinder) < problem.score(as_box)
+    assert not chosen
+    assert intervals(problem, cylinder, 2.71, 0.1, 0.002)[2]

@@ -132,9 +132,9 @@ def test_the_margin_is_the_intervals_outer_half_and_a_wider_interval_takes_a_lar
     scenario = Scenario()
     box = OrientedBox(np.array([0.5, 0.0, 0.0185]), np.array([0.134, 0.124, 0.037]))
     narrow = BoxEstimate(box, None, confidence=confidence(2.71),
-                         interval=lambda: (box.dims - 0.01, np.array([0.151, 0.141, 0.04])))
+                         interval=lambda: (box.dims - 0.01, np.array([0.151, 0.141, 0.04]), True))
     wide = BoxEstimate(box, None, misfit_flag=True, confidence=confidence(2.71),
-                       interval=lambda: (box.dims - 0.01, np.array([0.2, 0.2, 0.05])))
+                       interval=lambda: (box.dims - 0.01, np.array([0.2, 0.2, 0.05]), True))
     decided = packing_decision(scenario, narrow)
     np.testing.assert_allclose(decided.margin, [0.017, 0.017, 0.003], atol=1e-12)
     widened = packing_decision(scenario, wide)

@@ -10,8 +10,9 @@ from lrnbv_drake.core.planning.config import StopParams
 from lrnbv_drake.core.planning.stop import BoxStop
 
 
-def _estimate(dims_mm, width_mm=(1, 1, 1)):
-    """An estimate of dims (mm) whose interval is `width_mm` wide (None: the cell box)."""
+def _estimate(dims_mm, width_mm=(1, 1, 1), chosen=True):
+    """An estimate of dims (mm) whose interval is `width_mm` wide (None: the cell box) and
+    whose class the criterion keeps (`chosen`)."""
     if dims_mm is None:
         return None
     dims = np.array(dims_mm) / 1000
@@ -19,14 +20,15 @@ def _estimate(dims_mm, width_mm=(1, 1, 1)):
         return BoxEstimate.of_cells(OrientedBox(np.zeros(3), dims))
     half = np.array(width_mm) / 2000
     return BoxEstimate(OrientedBox(np.zeros(3), dims), None,
-                       interval=lambda: (dims - half, dims + half))
+                       interval=lambda: (dims - half, dims + half, chosen))
 
 
-def _first_stop(dims_mm, params, widths_mm=None):
+def _first_stop(dims_mm, params, widths_mm=None, chosen=None):
     """The number of poses after which `BoxStop` first stops, or None."""
     dut = BoxStop(params)
     widths = widths_mm or [(1, 1, 1)] * len(dims_mm)
-    estimates = [_estimate(d, w) for d, w in zip(dims_mm, widths, strict=True)]
+    chosen = chosen or [True] * len(dims_mm)
+    estimates = [_estimate(d, w, c) for d, w, c in zip(dims_mm, widths, chosen, strict=True)]
     for n in range(1, len(estimates) + 1):
         if dut.update(EstimateTrack(tuple(estimates[:n]))) is not None:
             return n
@@ -63,6 +65,15 @@ def test_a_still_box_with_a_side_no_reading_bounds_does_not_stop():
     assert _first_stop(still, StopParams(), [None] * 8) is None
 
 
+def test_a_still_narrow_box_of_a_class_the_criterion_would_change_does_not_stop():
+    """The box holds still with a narrow interval from the fourth pose, but until the sixth
+    the interval finds a class of a part the criterion would choose over the fit's: the rule
+    stops at the sixth."""
+    still = [(297, 201, 120)] * 8
+    assert _first_stop(still, StopParams(), chosen=[False] * 5 + [True] * 3) == 6
+    assert _first_stop(still, StopParams(), chosen=[False] * 8) is None
+
+
 def test_bad_thresholds_are_refused():
     with pytest.raises(ValueError, match="tolerance"):
         BoxStop(StopParams(tolerance=0.0))
@@ -80,7 +91,7 @@ def test_the_interval_is_read_only_once_the_box_has_held_still():
     for i, d in enumerate(dims):
         box = OrientedBox(np.zeros(3), np.array(d) / 1000)
         estimates.append(BoxEstimate(box, None, interval=lambda i=i, box=box: (
-            read.append(i) or (box.dims - 0.0005, box.dims + 0.0005))))
+            read.append(i) or (box.dims - 0.0005, box.dims + 0.0005, True))))
     dut = BoxStop(StopParams(tolerance=0.005, stable_poses=2, min_poses=1))
     stops = [dut.update(EstimateTrack(tuple(estimates[:n]))) for n in range(1, 7)]
     assert [s is not None for s in stops] == [False] * 5 + [True]

@@ -55,9 +55,10 @@ class BoxEstimate:
     misfit_flag: bool = False
     # The interval's confidence for one dimension: a cost rise of 2.71 is 0.90.
     confidence: float = math.nan
-    # () -> (3,) lower and upper bounds of (length, width, height) at the profile level;
-    # None for the cell box.
-    interval: Callable[[], tuple[np.ndarray, np.ndarray]] | None = dc.field(
+    # () -> (3,) lower and upper bounds of (length, width, height) at the profile level, and
+    # whether no class the interval tries is the criterion's choice over the fit
+    # (`interval.intervals`); None for the cell box.
+    interval: Callable[[], tuple[np.ndarray, np.ndarray, bool]] | None = dc.field(
         default=None, repr=False, compare=False)
 
     @staticmethod
@@ -65,7 +66,7 @@ class BoxEstimate:
         return BoxEstimate(box, None)
 
     @functools.cached_property
-    def _bounds(self) -> tuple[np.ndarray, np.ndarray] | None:
+    def _bounds(self) -> tuple[np.ndarray, np.ndarray, bool] | None:
         return None if self.interval is None else self.interval()
 
     @property
@@ -75,6 +76,13 @@ class BoxEstimate:
     @property
     def dims_upper(self) -> np.ndarray | None:
         return None if self._bounds is None else self._bounds[1]
+
+    @property
+    def chosen(self) -> bool | None:
+        """Whether the criterion keeps the fit's class against every class the interval
+        tries (a search that re-classed every part would keep this box); None without an
+        interval."""
+        return None if self._bounds is None else self._bounds[2]
 
     @property
     def widths(self) -> np.ndarray | None:
@@ -231,7 +239,7 @@ class ShapeEstimator:
             self._last_problem.forget_reclassed()
         self._last_problem = problem
 
-        def interval() -> tuple[np.ndarray, np.ndarray]:
+        def interval() -> tuple[np.ndarray, np.ndarray, bool]:
             bounds = intervals(problem, fit, rise, self.params.interval_reach, floor)
             problem.forget_reclassed()
             return bounds

@@ -1,6 +1,7 @@
 """Each dimension's interval: how far each side of the box moves before the fit's cost
 rises by a set amount (a profile of the same objective the fit minimises), widened to hold
-the box of every other class of a part that the readings fit within the same rise.
+the box of every other class of a part that the readings fit within the same rise of the
+lowest cost found.
 
 The moves hold the shape's class where it is, so they alone would leave out a shape the
 readings explain as well but the information criterion did not afford (a fruit fitted as a
@@ -66,23 +67,29 @@ def _extended(shape: Shape, direction: np.ndarray, support: float, value: float)
 
 
 def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: float
-              ) -> tuple[np.ndarray, np.ndarray]:
+              ) -> tuple[np.ndarray, np.ndarray, bool]:
     """(lower, upper) of the box's length, width and height over the shapes whose cost lies
-    within `rise` of the fit's: the fit's `slice_bounds`, and those of each solid part
-    re-classed (`classings`, searched within a centimetre) that the readings fit within the
-    rise, each to the rise left above its own cost."""
-    lower, upper = slice_bounds(problem, fit, rise, reach, floor)
+    within `rise` of the lowest found: the fit and each solid part re-classed (`classings`,
+    searched within a centimetre), each shape's `slice_bounds` to the rise left above its
+    own cost; and whether the fit is the criterion's choice among them (`Problem.score`).
+    The level is the lowest cost's, as a profile's is the best fit's: a class the criterion
+    did not afford may explain the readings better than the fit, and the fit's cost would
+    then let every shape rise by that difference too. The fit's box is always held (within
+    `floor`), even where such a class leaves it no rise."""
     shape = fit.shape
-    for k in range(len(shape.solid)):
-        if not shape.solid[k]:
-            continue
-        # A box part's own class is the fit: only a rounded part is tried as a box.
-        for other in classings(problem, fit, k, 0.01, box=shape.rounded[k]):
-            left = fit.cost + rise - other.cost
-            if left > 0.0:
-                low, high = slice_bounds(problem, other, left, reach, floor)
-                lower, upper = np.minimum(lower, low), np.maximum(upper, high)
-    return lower, upper
+    others = [other for k in range(len(shape.solid)) if shape.solid[k]
+              # A box part's own class is the fit: only a rounded part is tried as a box.
+              for other in classings(problem, fit, k, 0.01, box=shape.rounded[k])]
+    level = min([fit.cost] + [other.cost for other in others]) + rise
+    dims = shape.box(problem.table).dims
+    lower, upper = dims - floor, dims + floor
+    for trial in [fit, *others]:
+        left = level - trial.cost
+        if left > 0.0:
+            low, high = slice_bounds(problem, trial, left, reach, floor)
+            lower, upper = np.minimum(lower, low), np.maximum(upper, high)
+    chosen = all(problem.score(other) >= problem.score(fit) for other in others)
+    return np.maximum(lower, 0.0), upper, chosen
 
 
 def slice_bounds(problem: Problem, fit: Fit, rise: float, reach: float, floor: float

@@ -8,7 +8,10 @@ ends once every dimension has moved less than `tolerance` over the last `stable_
 poses, at least `min_poses` were taken, and the estimate's interval is narrower than
 `interval_width` on every dimension. The interval is the reported one, so a side that no
 view has bounded from outside (its interval reaching `estimation.interval_reach` out) keeps
-the episode going however still the box holds.
+the episode going however still the box holds; and so does a part the interval finds
+another class of that the information criterion would choose over the fit's
+(`BoxEstimate.chosen`): the search kept that part's class from fewer readings, and the box
+would change once it looks again.
 """
 
 from __future__ import annotations
@@ -45,8 +48,9 @@ class BoxStop:
         """Why to stop after the last estimate of `track`, or None."""
         p, recent = self.params, self.held_still(track)
         # The interval is read only once the box has held still: it costs a profile of
-        # every side and every class the readings fit as well.
-        if recent is None or not np.all(recent[-1].widths <= p.interval_width):
+        # every side and a refit of every part's every class.
+        if (recent is None or not np.all(recent[-1].widths <= p.interval_width)
+                or not recent[-1].chosen):
             return None
         return (f"the box held still and is known: every dimension moved less than "
                 f"{1000 * p.tolerance:.0f} mm over the last "
