@@ -43,7 +43,7 @@ def stalled(k: int):
         if recent is None:
             return False
         widths = [e.widths for e in recent]
-        if np.all(widths[-1] <= p.interval_width):
+        if np.all(widths[-1] <= p.interval_width) and recent[-1].chosen:
             return True
         if np.any(widths[-1] >= reach):
             return False

@@ -296,11 +296,18 @@ def test_the_interval_rises_from_the_lowest_cost_found(can_as_box):
     others = [problem.reclassed(as_box, 0, r, 0.01) for r in ROUNDINGS]
     assert cylinder.cost == min(o.cost for o in others)
     assert cylinder.cost < as_box.cost - 2.71
+    # The other classes cost more than the cylinder plus the rise: only it is held.
+    assert sorted(o.cost for o in others)[1] > cylinder.cost + 2.71
+    sides = 0.002 * np.array([2, 2, 1])
     dims = as_box.shape.box(0.0).dims
     low, high = slice_bounds(problem, cylinder, 2.71, 0.1, 0.002)
     lower, upper, chosen = intervals(problem, as_box, 2.71, 0.1, 0.002)
-    np.testing.assert_array_equal(lower, np.minimum(low, dims - 0.002))
-    np.testing.assert_array_equal(upper, np.maximum(high, dims + 0.002))
+    np.testing.assert_array_equal(lower, np.minimum(low, dims - sides))
+    np.testing.assert_array_equal(upper, np.maximum(high, dims + sides))
+    # The fit's level would have let the cylinder rise by its excess too: wider.
+    old_low, old_high = slice_bounds(problem, cylinder, as_box.cost + 2.71 - cylinder.cost,
+                                     0.1, 0.002)
+    assert np.any(old_high - old_low > high - low + 0.001)
     # Cheaper by more than the rounding's price: the criterion would choose the cylinder.
     assert problem.score(cylinder) < problem.score(as_box)
     assert not chosen

@@ -19,7 +19,6 @@ from lrnbv_drake.core.robot.sure_collision import (
     arm_frames,
     first_unrejected,
     settle,
-    surely_colliding,
 )
 from lrnbv_drake.station.arm_balls import _always_clear, build_arm_balls, build_outer_balls
 from lrnbv_drake.station.motion import MotionPlanner
@@ -42,7 +41,7 @@ def test_a_ball_collides_with_a_box_exactly_when_its_signed_distance_is_under_th
         centre, distance):
     for reach, collides in ((distance + 1e-3, True), (distance - 1e-3, False)):
         balls = _one_ball_and_a_box(centre, reach)
-        assert surely_colliding(kinematics.HOME, np.eye(4), balls)[0] == collides
+        assert (settle(kinematics.HOME, np.eye(4), balls)[0] == COLLIDES) == collides
 
 
 def test_two_balls_collide_exactly_when_their_centres_are_nearer_than_the_reach():
@@ -54,7 +53,7 @@ def test_two_balls_collide_exactly_when_their_centres_are_nearer_than_the_reach(
                          box_from_world=np.zeros((0, 4, 4)), box_half=np.zeros((0, 3)),
                          ball_box=np.zeros((0, 2)), ball_box_reach=[],
                          ball_ball=[[0, 1]], ball_ball_reach=[reach])
-        assert surely_colliding(kinematics.HOME, np.eye(4), balls)[0] == collides
+        assert (settle(kinematics.HOME, np.eye(4), balls)[0] == COLLIDES) == collides
 
 
 def test_the_frames_end_at_the_forward_kinematics_flange():
@@ -99,7 +98,7 @@ def test_no_free_configuration_is_rejected_and_most_colliding_ones_are(planner, 
     """Against SceneGraph's exact check, on configurations drawn over the joints' range."""
     Q = np.random.default_rng(0).uniform(-np.pi, np.pi, (2000, 6))
     free = np.array([planner._checker.CheckConfigCollisionFree(q) for q in Q])
-    sure = surely_colliding(Q, planner.X_W_base, balls)
+    sure = settle(Q, planner.X_W_base, balls) == COLLIDES
     assert not np.any(sure & free)
     assert sure.sum() >= 0.8 * (~free).sum()  # 95 % when written
     assert [planner.collision_free(q) for q in Q[:300]] == free[:300].tolist()

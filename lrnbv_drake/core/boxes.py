@@ -186,7 +186,7 @@ class OrientedBox:
         """Volume, m^3."""
         return float(np.prod(self.dims))
 
-    def _rotation_xy(self) -> np.ndarray:
+    def rotation_xy(self) -> np.ndarray:
         """2x2 rotation whose columns are the length and width axes in world xy."""
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         return np.array([[c, -s], [s, c]])
@@ -195,7 +195,7 @@ class OrientedBox:
         """(4, 2) xy corners of the footprint, counter-clockwise."""
         half = self.dims[:2] / 2
         local = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
-        return self.center[:2] + local @ self._rotation_xy().T
+        return self.center[:2] + local @ self.rotation_xy().T
 
     def footprint(self) -> shapely.Polygon:
         """The footprint as a shapely polygon (for areas and overlaps)."""
@@ -209,14 +209,14 @@ class OrientedBox:
 
     def aligned(self) -> AlignedBox:
         """The smallest axis-aligned box enclosing this one."""
-        half_xy = np.abs(self._rotation_xy()) @ (self.dims[:2] / 2)
+        half_xy = np.abs(self.rotation_xy()) @ (self.dims[:2] / 2)
         half = np.array([*half_xy, self.dims[2] / 2])
         return AlignedBox(self.center - half, self.center + half)
 
     def contains(self, points: np.ndarray, tol: float = 0.0) -> np.ndarray:
         """(N,) bool: points inside the box grown by `tol` (the boundary counts as inside)."""
         pts = _as_points(points)
-        local_xy = (pts[:, :2] - self.center[:2]) @ self._rotation_xy()
+        local_xy = (pts[:, :2] - self.center[:2]) @ self.rotation_xy()
         local = np.column_stack([local_xy, pts[:, 2] - self.center[2]])
         return np.all(np.abs(local) <= self.dims / 2 + tol, axis=1)
 

@@ -18,6 +18,7 @@ from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Sp
 from pydrake.multibody.tree import BodyIndex
 from pydrake.planning import SceneGraphCollisionChecker
 
+from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.robot.sure_collision import ArmBalls, arm_frames
 
 # Two configurations with no joint at a multiple of pi/2, so no body's pose matches a frame it
@@ -109,8 +110,8 @@ def _outer_shape_balls(shape, slack: float) -> list[tuple[np.ndarray, float]] | 
 
 def _outer_box(shape, X_W_G: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """(X_B_W, half extents): a box B holding `shape` posed at X_W_G; None for a shape of
-    another kind. A mesh's box is upright, turned about z to the least area of its footprint
-    (the objects stand on the table)."""
+    another kind. A mesh's box is upright, with the least footprint (`OrientedBox.from_points`;
+    the objects stand on the table)."""
     if isinstance(shape, Box):
         return np.linalg.inv(X_W_G), np.array([shape.width(), shape.depth(),
                                                shape.height()]) / 2
@@ -123,17 +124,11 @@ def _outer_box(shape, X_W_G: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None
             np.array([shape.a(), shape.b(), shape.c()])
         return np.linalg.inv(X_W_G), half
     if isinstance(shape, Convex | Mesh):
-        v = (X_W_G[:3, :3] @ _vertices(shape).T).T + X_W_G[:3, 3]
-        turns = np.deg2rad(np.arange(0.0, 90.0, 0.5))
-        c, s = np.cos(turns)[:, None], np.sin(turns)[:, None]
-        u, w = c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1]  # (turns, n)
-        k = int(np.argmin(np.ptp(u, axis=1) * np.ptp(w, axis=1)))
+        box = OrientedBox.from_points((X_W_G[:3, :3] @ _vertices(shape).T).T + X_W_G[:3, 3])
         X_W_B = np.eye(4)
-        X_W_B[:2, :2] = [[c[k, 0], -s[k, 0]], [s[k, 0], c[k, 0]]]
-        lo = np.array([u[k].min(), w[k].min(), v[:, 2].min()])
-        hi = np.array([u[k].max(), w[k].max(), v[:, 2].max()])
-        X_W_B[:3, 3] = X_W_B[:3, :3] @ ((lo + hi) / 2)
-        return np.linalg.inv(X_W_B), (hi - lo) / 2
+        X_W_B[:2, :2] = box.rotation_xy()
+        X_W_B[:3, 3] = box.center
+        return np.linalg.inv(X_W_B), box.dims / 2
     return None
 
 

@@ -40,6 +40,8 @@ from lrnbv_drake.station.cell_models import add_cell_models, fixed_pose, sensor_
 from lrnbv_drake.station.resources import make_robot_diagram_builder
 from lrnbv_drake.station.scenario import Scenario
 
+_log = logging.getLogger(__name__)
+
 #: Model instances that move with the arm (the sensor mount is welded to tool0).
 ROBOT_MODEL_NAMES = ("ur5e", "tof_mount")
 
@@ -102,7 +104,8 @@ class MotionPlanner:
     def __init__(self, scenario: Scenario, bare_table: bool = False):
         """`bare_table`: plan around the cell without its object (commissioning)."""
         builder = make_robot_diagram_builder()
-        add_cell_models(builder.plant(), scenario, bare_table=bare_table)
+        # Kept: its meshes' files must outlive the checker's reads of them (the outer balls').
+        self._cell = add_cell_models(builder.plant(), scenario, bare_table=bare_table)
         plant = builder.plant()
         plant.Finalize()
         self._model = builder.Build()
@@ -129,6 +132,9 @@ class MotionPlanner:
         # (core/robot/sure_collision.py).
         self._balls = build_arm_balls(self._checker, self.X_W_base)
         self._outer_balls = build_outer_balls(self._checker, self.X_W_base)
+        if self._outer_balls is None:
+            _log.warning("MotionPlanner: a collision shape no ball or box can hold; every "
+                         "configuration the inner balls do not reject goes to SceneGraph")
         self.X_tool0_S = sensor_on_tool0(plant, scenario).GetAsMatrix4()
         self._X_base_W = np.linalg.inv(self.X_W_base)
         self._X_S_tool0 = np.linalg.inv(self.X_tool0_S)

@@ -1,7 +1,6 @@
-"""Each dimension's interval: how far each side of the box moves before the fit's cost
-rises by a set amount (a profile of the same objective the fit minimises), widened to hold
-the box of every other class of a part that the readings fit within the same rise of the
-lowest cost found.
+"""Each dimension's interval: how far each side of the box moves before the cost rises a
+set amount above the lowest found (a profile of the same objective the fit minimises),
+widened to hold the box of every other class of a part that the readings fit within it.
 
 The moves hold the shape's class where it is, so they alone would leave out a shape the
 readings explain as well but the information criterion did not afford (a fruit fitted as a
@@ -75,14 +74,15 @@ def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: floa
     The level is the lowest cost's, as a profile's is the best fit's: a class the criterion
     did not afford may explain the readings better than the fit, and the fit's cost would
     then let every shape rise by that difference too. The fit's box is always held (within
-    `floor`), even where such a class leaves it no rise."""
+    `floor` a side), even where such a class leaves it no rise."""
     shape = fit.shape
     others = [other for k in range(len(shape.solid)) if shape.solid[k]
               # A box part's own class is the fit: only a rounded part is tried as a box.
               for other in classings(problem, fit, k, 0.01, box=shape.rounded[k])]
     level = min([fit.cost] + [other.cost for other in others]) + rise
-    dims = shape.box(problem.table).dims
-    lower, upper = dims - floor, dims + floor
+    # The fit's box with `slice_bounds`' floor on each side (the top's alone on the height).
+    dims, sides = shape.box(problem.table).dims, floor * np.array([2.0, 2.0, 1.0])
+    lower, upper = dims - sides, dims + sides
     for trial in [fit, *others]:
         left = level - trial.cost
         if left > 0.0:

@@ -60,8 +60,9 @@ class StopParams:
     # "paper": Algorithm 1, line 24 alone. "box" (the product's default): also once every
     # dimension of the reported estimate has moved less than `tolerance` (m) over the last
     # `stable_poses` poses, `min_poses` were taken and its interval is narrower than
-    # `interval_width` (m) on every dimension (core/planning/stop.py). One pose confirms:
-    # the interval guards the sides a second would (docs/decisions/0025).
+    # `interval_width` (m) on every dimension, and no class of a part the interval tries is
+    # the information criterion's choice over the fit's (core/planning/stop.py). One pose
+    # confirms: the interval guards the sides a second would (docs/decisions/0025).
     rule: str = "box"
     tolerance: float = 0.005
     stable_poses: int = 1

@@ -158,9 +158,9 @@ def expand_tree(tree: ViewTree | np.ndarray, n: int,
                                               kind="stable").tolist()):
             for k in ranked:
                 i = b * A + k
-                j = reach.first(solutions[i, :n_solutions[i]]) if n_solutions[i] else -1
-                if j >= 0:
-                    free = solutions[i, j]
+                first = reach.first(solutions[i, :n_solutions[i]]) if n_solutions[i] else -1
+                if first >= 0:
+                    free = solutions[i, first]
                     j = int(index_in_scored[i])
                     tree.poses.append(poses[b, k])
                     tree.parents.append(int(nearest[b]))

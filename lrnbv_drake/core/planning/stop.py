@@ -9,9 +9,9 @@ poses, at least `min_poses` were taken, and the estimate's interval is narrower 
 `interval_width` on every dimension. The interval is the reported one, so a side that no
 view has bounded from outside (its interval reaching `estimation.interval_reach` out) keeps
 the episode going however still the box holds; and so does a part the interval finds
-another class of that the information criterion would choose over the fit's
+another class of that the information criterion would choose over the fit's, by any margin
 (`BoxEstimate.chosen`): the search kept that part's class from fewer readings, and the box
-would change once it looks again.
+may change once it looks again (record 0027).
 """
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ class BoxStop:
             return None
         return (f"the box held still and is known: every dimension moved less than "
                 f"{1000 * p.tolerance:.0f} mm over the last "
-                f"{'pose' if p.stable_poses == 1 else f'{p.stable_poses} poses'} and its "
-                f"interval is narrower than {1000 * p.interval_width:.0f} mm "
+                f"{'pose' if p.stable_poses == 1 else f'{p.stable_poses} poses'}, its "
+                f"interval is narrower than {1000 * p.interval_width:.0f} mm and no other "
+                f"class fits better "
                 f"({' x '.join(f'{v:.3f}' for v in recent[-1].box.dims)} m)")

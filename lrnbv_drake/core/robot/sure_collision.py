@@ -8,7 +8,8 @@ does not filter, proves the collision in a microsecond: two shapes' signed dista
 that of any two balls inside them. The dual proves a configuration free: where every ball of a
 set whose union holds each link keeps clear, by more than the checker's padding, of a box
 holding each shape of the cell and of every ball of each link the checker tests it against,
-every pair of shapes does, and the exact check would say free. Nine in ten of the
+every pair of shapes does, and the exact check would say free (pairs across one joint
+whose distance no configuration changes are measured once and left out). Nine in ten of the
 configurations the inner balls leave are free, and the outer balls pass nearly all of them. So
 `settle` answers "collides", "free" or "ask the exact checker", never wrongly, and the
 planner's answers do not change (station/arm_balls.py builds the balls from the plant's
@@ -54,7 +55,7 @@ class ArmBalls:
     # (s, 2) int: ball pairs on bodies the checker tests against each other; they reach each
     # other where their centres are nearer than `ball_ball_reach`.
     ball_ball: np.ndarray
-    # (s,): the two radii plus the checker's padding of the pair, metres.
+    # (s,): the two radii plus the checker's padding of the pair, metres (and the margin).
     ball_ball_reach: np.ndarray
 
     def __post_init__(self) -> None:
@@ -72,12 +73,6 @@ def arm_frames(q: np.ndarray, X_W_base: np.ndarray) -> np.ndarray:
     frames = np.empty((7, 4, 4))
     _frames(_as_kernel_array(q), _as_kernel_array(X_W_base), frames, np.empty((4, 4)))
     return frames
-
-
-def surely_colliding(Q: np.ndarray, X_W_base: np.ndarray, balls: ArmBalls) -> np.ndarray:
-    """(n,) bool: which configurations Q (n, 6) certainly collide (a ball pair or a ball and a
-    box overlap). False means only "not proved": ask the exact checker."""
-    return settle(Q, X_W_base, balls) == COLLIDES
 
 
 def settle(Q: np.ndarray, X_W_base: np.ndarray, inner: ArmBalls,
@@ -187,3 +182,13 @@ def _kernel(Q, X_W_base, frame, centre, box_from_world, box_half, ball_box, ball
         if stop and out[n] != COLLIDES:
             return out[:n + 1]
     return out
+
+
+def compile_kernels() -> None:
+    """Compiles the balls' kernel into numba's on-disk cache: cold, the first planning
+    iteration of every process would wait for it (`core/kernels.py`)."""
+    balls = ArmBalls(frame=[0], centre=np.zeros((1, 3)), radius=[0.01],
+                     box_from_world=np.eye(4)[None], box_half=np.full((1, 3), 0.1),
+                     ball_box=[[0, 0]], ball_box_reach=[0.01], ball_ball=np.zeros((0, 2)),
+                     ball_ball_reach=np.zeros(0))
+    settle(np.zeros((1, 6)), np.eye(4), balls, balls)
