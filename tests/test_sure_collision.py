@@ -20,7 +20,12 @@ from lrnbv_drake.core.robot.sure_collision import (
     first_unrejected,
     settle,
 )
-from lrnbv_drake.station.arm_balls import _always_clear, build_arm_balls, build_outer_balls
+from lrnbv_drake.station.arm_balls import (
+    _always_clear,
+    _robot_geometries,
+    build_arm_balls,
+    build_outer_balls,
+)
 from lrnbv_drake.station.motion import MotionPlanner
 from lrnbv_drake.station.scenario import Scenario
 
@@ -245,7 +250,8 @@ def test_the_pairs_left_out_keep_the_same_distance_in_every_configuration(planne
     checker = planner._checker
     plant = checker.plant()
     inspector = checker.model().scene_graph().model_inspector()
-    clear = _always_clear(checker, planner.X_W_base)
+    clear = _always_clear(checker, planner.X_W_base,
+                          _robot_geometries(checker, planner.X_W_base))
     names = {frozenset(inspector.GetName(g) for g in pair) for pair in clear}
     assert frozenset(("ur5e::wrist_3_housing", "tof_mount::mount_collision")) in names
     pairs = [tuple(pair) for pair in clear]

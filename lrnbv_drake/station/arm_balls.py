@@ -222,8 +222,8 @@ def build_outer_balls(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray,
     X_W_base: every pair of bodies the checker does not filter (SceneGraph's own filters may
     only spare more). None where a shape cannot be held (a body off the arm's DH chain, a
     shape of another kind): then no configuration is proved free."""
-    balls, boxes = [], []
-    for body, geometry, frame, X_i_G, shape in _robot_geometries(checker, X_W_base):
+    balls, boxes, geometries = [], [], _robot_geometries(checker, X_W_base)
+    for body, geometry, frame, X_i_G, shape in geometries:
         held = None if frame is None else _outer_shape_balls(shape, slack)
         if held is None:
             return None
@@ -234,7 +234,7 @@ def build_outer_balls(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray,
         if box is None:
             return None
         boxes.append((body, geometry, *box))
-    clear = _always_clear(checker, X_W_base)
+    clear = _always_clear(checker, X_W_base, geometries)
 
     def tested(body_a, geometry_a, body_b, geometry_b) -> bool:
         return not (checker.IsCollisionFilteredBetween(body_a, body_b)
@@ -252,12 +252,13 @@ def _round_about_z(shape, X_i_G: np.ndarray) -> bool:
         abs(abs(X_i_G[2, 2]) - 1.0) < 1e-12
 
 
-def _always_clear(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray) -> set:
-    """The robot's geometry pairs whose distance no configuration changes, and which keep clear
-    of each other by more than their padding: pairs on the DH frames either side of one joint
-    of which one is round about the joint's axis (the wrist's housings and the sensor's mount,
-    coaxial with wrist 3, whose outer balls always overlap). Their distance is Drake's, once."""
-    geometries = [g for g in _robot_geometries(checker, X_W_base) if g[2] is not None]
+def _always_clear(checker: SceneGraphCollisionChecker, X_W_base: np.ndarray,
+                  geometries: list) -> set:
+    """The pairs of the robot's `geometries` (`_robot_geometries`, each on a DH frame) whose
+    distance no configuration changes, and which keep clear of each other by more than their
+    padding: pairs on the DH frames either side of one joint of which one is round about the
+    joint's axis (the wrist's housings and the sensor's mount, coaxial with wrist 3, whose
+    outer balls always overlap). Their distance is Drake's, once."""
     q = _PROBES[0]
     frames = arm_frames(q, X_W_base)
     query = checker.plant().get_geometry_query_input_port().Eval(checker.UpdatePositions(q))
