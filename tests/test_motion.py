@@ -199,6 +199,35 @@ def test_between_two_low_views_across_the_box_the_path_goes_over_it_not_through_
                    for s in np.linspace(0.0, 1.0, 200))
 
 
+def test_a_straight_path_to_another_branch_beats_a_detour_to_the_nearest(planner):
+    """From a low view on the box's -y side to one on its +y side (a move of a paper
+    campaign's episode): the straight path to the nearest collision-free IK branch sweeps the
+    arm through the box, and a straight path to another branch is free. The plan takes the
+    quickest path: no straight path to a free branch is quicker than it, and it is not the
+    nearest branch's (that one's quickest way round is a detour)."""
+    q_start = np.array([-0.8108, -0.5123, 0.7019, -0.4213, -1.1284, 0.1007])
+    position = np.array([0.4898, 0.3756, 0.1632])
+    target = look_at(position, np.add(position, [-0.0342, -0.9686, -0.2464]))
+    plan = planner.plan(q_start, target)
+    assert plan.ok, plan.reason
+    duration = plan.trajectory.end_time() - plan.trajectory.start_time()
+    free = [q for q in planner.ik(target, q_start) if planner.collision_free(q)]
+
+    def straight_is_clear(q):
+        path = q_start + np.linspace(0.0, 1.0, 200)[:, None] * (q - q_start)
+        return all(planner.collision_free(p) for p in path) and planner.path_in_workspace(
+            np.array([q_start, q]))
+
+    assert not straight_is_clear(free[0])
+    clear = [q for q in free[1:] if straight_is_clear(q)]
+    assert clear
+    assert duration <= min(planner.travel_time(q_start, np.array(clear))) + 1e-9
+    assert not np.allclose(plan.q_target, free[0])
+    assert all(planner.collision_free(plan.trajectory.value(t).ravel())
+               for t in np.linspace(plan.trajectory.start_time(), plan.trajectory.end_time(),
+                                    200))
+
+
 @pytest.mark.parametrize(("step_deg", "turn", "largest_move"), [
     (0.0, 1.5, 1.5), (90.0, 1.5, 1.5 - np.pi / 2), (180.0, 1.5, 1.5),
     (90.0, 3.0, np.pi - 3.0), (180.0, 3.0, np.pi - 3.0)])

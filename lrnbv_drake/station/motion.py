@@ -2,13 +2,13 @@
 
 For a target sensor pose the planner takes every IK branch of the pose and of the pose rolled
 about the sensor's optical axis by the allowed steps (`robot.sensor_roll_step_deg`: the same
-view, its square grid of zones in another order), nearest to the current joints first, and
-keeps the first one whose configuration and straight joint-space path are collision free
-(robot against table, object and itself, with padding) and keep the sensor inside the
-workspace all along (the hardware's safety limits refuse any command that leaves it). If no
-straight path qualifies it tries a detour over the object, then the path through the home
-configuration. The result is a typed `MotionPlan`: a failure says why and never raises, so an
-episode can try another viewpoint.
+view, its square grid of zones in another order) whose configuration is collision free
+(robot against table, object and itself, with padding), and to each the straight joint-space
+path, a detour over the object and the path through the home configuration. Of these it keeps
+the quickest whose every segment is collision free and keeps the sensor inside the workspace
+all along (the hardware's safety limits refuse any command that leaves it): a straight path
+to another branch is often quicker than a detour to the nearest. The result is a typed
+`MotionPlan`: a failure says why and never raises, so an episode can try another viewpoint.
 
 Trajectories are synchronised trapezoidal velocity profiles through the waypoints (stopping at
 each), represented exactly as a cubic-Hermite `PiecewisePolynomial` (a quadratic is a cubic).
@@ -256,18 +256,20 @@ class MotionPlanner:
                               f"all {len(candidates)} IK solutions collide with the cell or "
                               f"the robot itself")
         via = self._detours(q_current, p)
+        paths = [np.array(w) for q in free
+                 for w in ([q_current, q], *([q_current, v, q] for v in via))]
         leaves_workspace = 0
-        for q in free:
-            for waypoints in ([q_current, q], *([q_current, v, q] for v in via)):
-                if not all(self._checker.CheckEdgeCollisionFree(a, b)
-                           for a, b in itertools.pairwise(waypoints)):
-                    continue
-                if not self.path_in_workspace(np.array(waypoints)):
-                    leaves_workspace += 1
-                    continue
-                trajectory = trapezoidal_trajectory(np.array(waypoints), self.max_velocity,
-                                                    self.max_acceleration, start_time)
-                return MotionPlan(None, "ok", q_target=q, trajectory=trajectory)
+        for i in np.argsort([self._duration(w) for w in paths], kind="stable"):
+            waypoints = paths[i]
+            if not all(self._checker.CheckEdgeCollisionFree(a, b)
+                       for a, b in itertools.pairwise(waypoints)):
+                continue
+            if not self.path_in_workspace(waypoints):
+                leaves_workspace += 1
+                continue
+            trajectory = trapezoidal_trajectory(waypoints, self.max_velocity,
+                                                self.max_acceleration, start_time)
+            return MotionPlan(None, "ok", q_target=waypoints[-1], trajectory=trajectory)
         if leaves_workspace:
             return MotionPlan(MotionFailure.PATH_OUTSIDE_WORKSPACE,
                               f"{len(free)} collision-free IK solutions, but every "
@@ -277,10 +279,15 @@ class MotionPlanner:
                           f"{len(free)} collision-free IK solutions, but every joint-space "
                           f"path to them (direct or through home) collides")
 
+    def _duration(self, waypoints: np.ndarray) -> float:
+        """Seconds `trapezoidal_trajectory` takes through `waypoints` (n, 6), stopping at each."""
+        return float(sum(self.travel_time(a, b[None])[0]
+                         for a, b in itertools.pairwise(waypoints)))
+
     def _detours(self, q_current: np.ndarray, target: np.ndarray) -> list[np.ndarray]:
         """Configurations to pass through around whatever lies between the sensor at
-        q_current and `target` (a position), shortest first: over it, the sensor looking down
-        0.45 m above the table midway between the two, then home. Between two low views on
+        q_current and `target` (a position): over it, the sensor looking down 0.45 m above
+        the table midway between the two, and home. Between two low views on
         either side of the object the straight joint path sweeps the sensor through the
         object: through home such moves took 9.4-10.0 s, over it 3.4-3.8 s (three of the ten
         moves of `make run`)."""
