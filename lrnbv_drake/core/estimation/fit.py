@@ -235,7 +235,10 @@ class Problem:
             if len(zones) == 0:
                 return fit
             totals = trials.sum(axis=1)
-            best = int(np.argmin(totals))
+            # Of the candidates within 1e-9 of the lowest, the least move: equal costs say
+            # nothing about which, and a sum's last bits would otherwise decide.
+            tied = np.flatnonzero(totals <= totals.min() + 1e-9)
+            best = int(tied[np.argmin(np.abs(grid[tied] - centre))])
             if totals[best] >= fit.costs[zones].sum() - 1e-9:
                 return fit
             fit = self._updated(fit, fit.shape.with_part(k, xs[best]), zones)
