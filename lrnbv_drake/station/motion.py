@@ -256,20 +256,35 @@ class MotionPlanner:
                               f"all {len(candidates)} IK solutions collide with the cell or "
                               f"the robot itself")
         via = self._detours(q_current, p)
-        paths = [np.array(w) for q in free
-                 for w in ([q_current, q], *([q_current, v, q] for v in via))]
+        free = np.array(free)
+        # (len(free), 1 + len(via)): the straight path's duration to each branch, then the
+        # path's through each via point, stopping there.
+        to_via = self.travel_time(q_current, np.array(via))
+        durations = np.column_stack([self.travel_time(q_current, free),
+                                     *(t + self.travel_time(v, free)
+                                       for t, v in zip(to_via, via, strict=True))])
+        first_leg_clear = {}  # a via point's first leg, the same for every branch
         leaves_workspace = 0
-        for i in np.argsort([self._duration(w) for w in paths], kind="stable"):
-            waypoints = paths[i]
-            if not all(self._checker.CheckEdgeCollisionFree(a, b)
-                       for a, b in itertools.pairwise(waypoints)):
+        for flat in np.argsort(durations, axis=None, kind="stable"):
+            j, route = divmod(int(flat), durations.shape[1])
+            if route == 0:
+                waypoints = np.array([q_current, free[j]])
+                clear = self._checker.CheckEdgeCollisionFree(q_current, free[j])
+            else:
+                v = via[route - 1]
+                waypoints = np.array([q_current, v, free[j]])
+                if route not in first_leg_clear:
+                    first_leg_clear[route] = self._checker.CheckEdgeCollisionFree(q_current, v)
+                clear = (first_leg_clear[route]
+                         and self._checker.CheckEdgeCollisionFree(v, free[j]))
+            if not clear:
                 continue
             if not self.path_in_workspace(waypoints):
                 leaves_workspace += 1
                 continue
             trajectory = trapezoidal_trajectory(waypoints, self.max_velocity,
                                                 self.max_acceleration, start_time)
-            return MotionPlan(None, "ok", q_target=waypoints[-1], trajectory=trajectory)
+            return MotionPlan(None, "ok", q_target=free[j], trajectory=trajectory)
         if leaves_workspace:
             return MotionPlan(MotionFailure.PATH_OUTSIDE_WORKSPACE,
                               f"{len(free)} collision-free IK solutions, but every "
@@ -278,11 +293,6 @@ class MotionPlanner:
         return MotionPlan(MotionFailure.PATH_IN_COLLISION,
                           f"{len(free)} collision-free IK solutions, but every joint-space "
                           f"path to them (direct or through home) collides")
-
-    def _duration(self, waypoints: np.ndarray) -> float:
-        """Seconds `trapezoidal_trajectory` takes through `waypoints` (n, 6), stopping at each."""
-        return float(sum(self.travel_time(a, b[None])[0]
-                         for a, b in itertools.pairwise(waypoints)))
 
     def _detours(self, q_current: np.ndarray, target: np.ndarray) -> list[np.ndarray]:
         """Configurations to pass through around whatever lies between the sensor at
