@@ -8,7 +8,7 @@ import pytest
 from lrnbv_drake.core.robot import kinematics
 from lrnbv_drake.core.robot.motion import MotionFailure
 from lrnbv_drake.core.robot.poses import look_at
-from lrnbv_drake.station.motion import MotionPlanner, trapezoidal_trajectory
+from lrnbv_drake.station.motion import MotionPlanner, halted, trapezoidal_trajectory
 from lrnbv_drake.station.scenario import Scenario
 
 
@@ -61,6 +61,39 @@ def test_trapezoid_respects_limits_and_synchronises():
     s = (q[first] - waypoints[0]) @ d / (d @ d)
     np.testing.assert_allclose(q[first], waypoints[0] + s[:, None] * d, atol=1e-9)
     assert np.max(np.abs(v) / vmax) > 0.999 or np.max(np.abs(a) / amax) > 0.999
+
+
+@pytest.mark.parametrize("when", [0.3, 0.5, 0.9])  # ramping up, cruising, braking
+def test_a_halted_move_stops_on_its_segment_within_the_limits_no_later_than_its_end(when):
+    """Halted part way, the arm brakes along the segment it was on (collinear with its two
+    waypoints, short of the second), at the joints' limits: its duration is the limiting
+    joint's speed over its acceleration, by hand, and it ends at rest."""
+    rng = np.random.default_rng(3)
+    waypoints = rng.uniform(-2, 2, size=(2, 6))
+    vmax = np.array([1.0, 1.0, 1.5, 2.0, 2.0, 3.0])
+    amax = np.array([0.5, 0.5, 1.0, 1.0, 2.0, 2.0])
+    move = trapezoidal_trajectory(waypoints, vmax, amax, start_time=2.0)
+    t = move.start_time() + when * (move.end_time() - move.start_time())
+    dut = halted(move, t, amax)
+    v0 = move.EvalDerivative(t, 1).ravel()
+    assert dut.start_time() == t
+    assert dut.end_time() - t == pytest.approx(np.max(np.abs(v0) / amax))
+    assert dut.end_time() <= move.end_time() + 1e-12
+    _, q, v, a = _sample(dut)
+    np.testing.assert_allclose(q[0], move.value(t).ravel(), atol=1e-12)
+    np.testing.assert_allclose(v[-1], 0.0, atol=1e-9)
+    assert np.all(np.abs(a) <= amax * (1 + 1e-9))
+    d = waypoints[1] - waypoints[0]
+    s = (q - waypoints[0]) @ d / (d @ d)
+    np.testing.assert_allclose(q, waypoints[0] + s[:, None] * d, atol=1e-9)
+    assert np.all(np.diff(s) >= -1e-12) and s[-1] <= 1.0 + 1e-12
+
+
+def test_halting_a_move_at_rest_holds_where_it_is():
+    move = trapezoidal_trajectory(np.array([[0.0] * 6, [1.0] * 6]), np.ones(6), np.ones(6))
+    dut = halted(move, move.end_time() + 0.5, np.ones(6))
+    np.testing.assert_allclose(dut.value(dut.end_time()).ravel(), 1.0)
+    assert dut.end_time() - dut.start_time() < 0.01
 
 
 @pytest.fixture(scope="module")

@@ -90,6 +90,26 @@ def trapezoidal_trajectory(waypoints: np.ndarray, max_velocity: np.ndarray,
                                             np.column_stack(v_knots))
 
 
+def halted(trajectory: PiecewisePolynomial, t: float, max_acceleration: np.ndarray
+           ) -> PiecewisePolynomial:
+    """`trajectory` from time t brought to rest as soon as the joints' accelerations allow.
+
+    Every joint decelerates uniformly over the same time, so the arm stays on the line in
+    joint space it was moving along: a segment of `trapezoidal_trajectory`'s, whose every
+    point was checked for collisions. The trapezoid's own braking is the limiting joint's at
+    its limit, the same rate as this one's, so the arm stops no later on the segment than the
+    trapezoid would have (before its end)."""
+    q = np.asarray(trajectory.value(t), float).ravel()
+    v = np.asarray(trajectory.EvalDerivative(t, 1), float).ravel()
+    duration = float(np.max(np.abs(v) / max_acceleration))
+    if duration < 1e-9:  # at rest already: hold for an instant
+        return PiecewisePolynomial.CubicHermite(np.array([t, t + 1e-3]), np.column_stack([q, q]),
+                                                np.zeros((q.size, 2)))
+    return PiecewisePolynomial.CubicHermite(np.array([t, t + duration]),
+                                            np.column_stack([q, q + 0.5 * duration * v]),
+                                            np.column_stack([v, np.zeros_like(v)]))
+
+
 def _roll(angle: float) -> np.ndarray:
     """X_S_S' (4x4): a rotation by `angle` about the sensor's optical axis (z)."""
     c, s = math.cos(angle), math.sin(angle)
@@ -293,6 +313,10 @@ class MotionPlanner:
         return MotionPlan(MotionFailure.PATH_IN_COLLISION,
                           f"{len(free)} collision-free IK solutions, but every joint-space "
                           f"path to them (direct or through home) collides")
+
+    def halt(self, trajectory: PiecewisePolynomial, t: float) -> PiecewisePolynomial:
+        """`trajectory` brought to rest from time t on its path (`halted`)."""
+        return halted(trajectory, t, self.max_acceleration)
 
     def _detours(self, q_current: np.ndarray, target: np.ndarray) -> list[np.ndarray]:
         """Configurations to pass through around whatever lies between the sensor at

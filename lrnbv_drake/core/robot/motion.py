@@ -49,7 +49,12 @@ class MotionPlanning(Protocol):
     """Plans a motion from joints `q_current` to sensor pose `X_WS` (4x4), starting at
     `start_time`; a failure is returned, never raised. The pose reached may be X_WS rolled
     about the optical axis by a symmetry of the zone grid (the same view); what a frame saw is
-    placed by the pose measured at capture, never the planned one."""
+    placed by the pose measured at capture, never the planned one. `halt` stops a motion
+    under way (the stop rule may end the episode during one)."""
 
     def plan(self, q_current: np.ndarray, X_WS: np.ndarray, start_time: float = 0.0
              ) -> MotionPlan: ...
+    def halt(self, trajectory: Trajectory, t: float) -> Trajectory:
+        """`trajectory`, one this planner made, brought to rest from time t without leaving
+        its checked path."""
+        ...
