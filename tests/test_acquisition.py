@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from stop_stand_ins import CountingEstimator, StopAfter
 
 from lrnbv_drake.core.acquisition import (
     HOLD_TOLERANCE,
@@ -16,36 +17,45 @@ from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.planning.policy import FRAME_OF_VIEW, Observation, Proposal, ViewpointPolicy
 from lrnbv_drake.core.robot.motion import MotionFailure, MotionPlan
 from lrnbv_drake.core.sensing.sensor import ToFFrame
+from lrnbv_drake.core.stop_while_moving import StopWhileMoving
 
 PERIOD, FRAME_PERIOD = 0.05, 0.1
 
 
 class Ramp:
-    """A trajectory from q0 to q1 over [t0, t0 + 1] s, linear."""
+    """A trajectory from q0 to q1 over [t0, t0 + duration] s, linear."""
 
-    def __init__(self, q0, q1, t0):
+    def __init__(self, q0, q1, t0, duration=1.0):
         self.q0, self.q1, self.t0 = np.asarray(q0, float), np.asarray(q1, float), t0
+        self.duration = duration
 
     def value(self, t):
-        s = np.clip(t - self.t0, 0.0, 1.0)
+        s = np.clip((t - self.t0) / self.duration, 0.0, 1.0)
         return ((1 - s) * self.q0 + s * self.q1).reshape(6, 1)
 
     def end_time(self):
-        return self.t0 + 1.0
+        return self.t0 + self.duration
 
 
 class ToX:
-    """Motion stand-in: the joint target is the pose's x in joint 0; x < 0 is unreachable."""
+    """Motion stand-in: the joint target is the pose's x in joint 0; x < 0 is unreachable.
+    Moves take `duration` s; a halt holds where the ramp is for a tenth of a second."""
 
-    def __init__(self):
-        self.starts = []
+    def __init__(self, duration=1.0):
+        self.starts, self.duration, self.halts = [], duration, []
+
+    def halt(self, trajectory, t):
+        self.halts.append(t)
+        q = trajectory.value(t).ravel()
+        return Ramp(q, q, t, 0.1)
 
     def plan(self, q_current, X_WS, start_time=0.0):
         self.starts.append(np.array(q_current))
         if X_WS[0, 3] < 0:
             return MotionPlan(MotionFailure.UNREACHABLE, f"x = {X_WS[0, 3]} < 0")
         q = np.r_[X_WS[0, 3], np.zeros(5)]
-        return MotionPlan(None, "ok", q_target=q, trajectory=Ramp(q_current, q, start_time))
+        return MotionPlan(None, "ok", q_target=q,
+                          trajectory=Ramp(q_current, q, start_time, self.duration))
 
 
 class Scripted(ViewpointPolicy):
@@ -68,6 +78,7 @@ class Inputs:
         self.frame_value = ToFFrame.empty()
         self.extraction = None
         self.estimates_read = 0  # how often the sequencer asked for the estimate track
+        self.log = None  # the episode's, when the track is to hold one estimate per extraction
 
     def frame(self):
         return self.frame_value
@@ -84,7 +95,7 @@ class Inputs:
 
     def estimates(self):
         self.estimates_read += 1
-        return EstimateTrack()
+        return EstimateTrack((None,) * len(self.log.extractions)) if self.log else EstimateTrack()
 
 
 def _pose(x):
@@ -275,3 +286,64 @@ def test_a_self_filter_takes_the_robot_out_of_the_recorded_frame_and_counts_it()
     assert a.frame.valid.sum() == 56 and not a.frame.valid[0].any()
     # What restores the raw frame: the dropped zones' raw indices and original statuses.
     assert a.info == {"robot_zones": {"index": list(range(8)), "status": [5] * 8}}
+
+
+def _run(dut, inputs, until=20.0):
+    """Steps `dut` every PERIOD, the arm where it was commanded, a new frame every
+    FRAME_PERIOD, until it is done."""
+    s, t = dut.initial_state(np.zeros(6)), 0.0
+    inputs.log = s.log
+    while s.mode is not Mode.DONE and t < until:
+        inputs.q_value = dut.command(s, t)
+        inputs.frame_value = _frame(1 + round(t / FRAME_PERIOD), t - t % FRAME_PERIOD)
+        s = dut.step(s, t, inputs)
+        t = round(t + PERIOD, 9)
+    return s
+
+
+def _beside(seconds=0.0, n=2):
+    return StopWhileMoving(CountingEstimator(seconds=seconds), StopAfter(n), threaded=False)
+
+
+def test_the_stop_checked_beside_the_move_ends_with_the_same_poses_and_halts_that_move():
+    """Stop after 2 poses. In order, the loop checks before planning the third view; beside,
+    it plans and starts the third move, then halts it when the check says stop: the same two
+    poses and reason, a third policy call, and the halted move's time in the motion."""
+    views = [Proposal(candidates=[_pose(x)]) for x in (0.5, 0.2, 0.9, 0.4)]
+    in_order = AcquisitionSequencer(Scripted(views), ToX(), period=PERIOD,
+                                    frame_period=FRAME_PERIOD, stop=StopAfter(2))
+    motion = ToX()
+    dut = AcquisitionSequencer(Scripted(views), motion, period=PERIOD,
+                               frame_period=FRAME_PERIOD, stop=StopAfter(2),
+                               stop_while_moving=_beside())
+    ordered, beside = _run(in_order, Inputs()), _run(dut, Inputs())
+    assert ordered.log.termination == beside.log.termination == "stop after 2"
+    assert ([a.frame.sequence for a in ordered.log.acquisitions]
+            == [a.frame.sequence for a in beside.log.acquisitions]) and len(
+        beside.log.acquisitions) == 2
+    assert (len(in_order.policy.observations), len(dut.policy.observations)) == (2, 3)
+    # The third move (0.2 -> 0.9 in a 1 s ramp) halted at the first tick after it began,
+    # where the arm stays: its motion is those ticks and the halt's 0.1 s.
+    (t_halt,) = motion.halts
+    assert len(beside.log.travel_seconds) == 3
+    assert beside.log.travel_seconds[2] == pytest.approx(t_halt + 0.1 - (t_halt - PERIOD))
+    assert beside.hold[0] == pytest.approx(0.2 + 0.7 * PERIOD)
+    assert beside.log.stop_wait_seconds == []  # both checks were done while the arm moved
+
+
+def test_a_check_slower_than_the_move_is_waited_for_at_the_view_as_computation():
+    """A 0.1 s move and a check of 0.3 s: the arm would wait at the view the 0.2 s the move
+    did not cover, which the cycle counts as computation; the simulated loop goes on at
+    once, so the frames are taken when they would have been with a quick check."""
+    views = [Proposal(candidates=[_pose(x)]) for x in (0.5, 0.2)]
+    quick = _run(AcquisitionSequencer(Scripted(views), ToX(duration=0.1), period=PERIOD,
+                                      frame_period=FRAME_PERIOD,
+                                      stop_while_moving=_beside(0.0, 5)), Inputs())
+    dut = AcquisitionSequencer(Scripted(views), ToX(duration=0.1), period=PERIOD,
+                               frame_period=FRAME_PERIOD, stop_while_moving=_beside(0.3, 5))
+    s = _run(dut, Inputs())
+    assert len(s.log.acquisitions) == 2 and s.log.termination == "done"
+    (wait,) = s.log.stop_wait_seconds
+    assert 0.2 - 1e-9 <= wait <= 0.2 + 0.05
+    assert cycle_time(s.log).computation >= wait
+    assert [a.time for a in s.log.acquisitions] == [a.time for a in quick.log.acquisitions]

@@ -59,14 +59,19 @@ def test_lrnbv_on_the_horizontal_box_ends_when_the_box_holds_still_in_few_poses(
     assert len(timing["tree_expansion_s"]) == report["n_poses"] - 1
     # The cell's time: the arm's motion and the waits for frames are the simulated time but
     # for the loop's own ticks, at most four update periods a pose (the tick that sees a
-    # motion end, two for the map's 1.5-period wait, one to plan); the computation is what
-    # was measured.
+    # motion end, two for the map's 1.5-period wait, one to plan) and a stop check's at the
+    # last view; the computation is what was measured, with the waits for the stop checks
+    # that the moves did not cover (simulated time does not wait for them).
     cycle, period = report["cycle_time"], Scenario().sensor.period / 2
     moving = cycle["motion_s"] + cycle["settle_s"]
-    assert timing["simulated_seconds"] - 4 * period * report["n_poses"] <= moving
+    assert timing["simulated_seconds"] - 4 * period * report["n_poses"] <= moving + sum(
+        timing["stop_wait_s"])
     assert moving <= timing["simulated_seconds"]
-    assert cycle["computation_s"] >= sum(p["policy_s"] for p in timing["planning_steps"])
-    assert cycle["total_s"] == pytest.approx(moving + cycle["computation_s"])
+    assert sum(timing["travel_s"]) == pytest.approx(cycle["motion_s"])
+    assert cycle["computation_s"] >= (sum(p["policy_s"] for p in timing["planning_steps"])
+                                      + sum(timing["stop_wait_s"]))
+    assert cycle["total_s"] == pytest.approx(cycle["motion_s"] + cycle["settle_s"]
+                                             + cycle["computation_s"])
 
 
 def test_the_stop_reads_the_estimates_the_report_gives_and_refit_gives_them_again(lrnbv):
@@ -109,6 +114,26 @@ def test_same_seed_same_episode(lrnbv, tmp_path):
     a, b = (np.load(r.out_dir / "frames.npz") for r in (lrnbv, again))
     for key in a.files:
         np.testing.assert_array_equal(a[key], b[key])
+
+
+def test_checking_the_stop_before_planning_gives_the_same_episode_without_the_halted_move(
+        lrnbv, tmp_path):
+    """`planner.stop.while_moving: false` checks the stop before planning the next view: the
+    same readings at the same poses and times and the same box, the stop's reason, and no
+    move begun after the last pose; the default began one and halted it when the stop
+    came."""
+    scenario = Scenario(seed=0)
+    scenario.planner.stop.while_moving = False
+    in_order = run_episode(scenario, "lrnbv", tmp_path)
+    a, b = (np.load(r.out_dir / "frames.npz") for r in (lrnbv, in_order))
+    for key in a.files:  # the times too: a check beside a move takes no simulated time
+        np.testing.assert_array_equal(a[key], b[key])
+    beside, ordered = lrnbv.report, in_order.report
+    assert beside["termination"] == ordered["termination"]
+    assert beside["estimated_box"]["dims"] == ordered["estimated_box"]["dims"]
+    assert len(ordered["timing"]["travel_s"]) == ordered["n_poses"]  # one to each view
+    assert len(beside["timing"]["travel_s"]) == beside["n_poses"] + 1
+    assert ordered["timing"]["stop_wait_s"] == []
 
 
 def test_nbv_runs_the_same_algorithm_without_density_and_visited(tmp_path):

@@ -11,6 +11,7 @@ import dataclasses as dc
 import gc
 import json
 import shutil
+import threading
 import time
 
 import fake_rtde
@@ -19,6 +20,7 @@ import pytest
 from pydrake.common.yaml import yaml_dump_typed
 
 from lrnbv_drake.cli.main import main
+from lrnbv_drake.core.estimation.track import EpisodeEstimator
 from lrnbv_drake.core.mapping.occupancy_map import OccupancyMap
 from lrnbv_drake.core.planning.heu import heu_poses
 from lrnbv_drake.core.robot import kinematics
@@ -117,6 +119,44 @@ def test_the_episode_runs_to_its_cap_on_the_real_drivers(finished):
     assert (out / MAP_FILE).stat().st_size > 0
     runs = json.loads((out / SESSION_FILE).read_text())["runs"]
     assert len(runs) == 1 and runs[0]["recorded_before"] == 0
+
+
+def test_a_stop_during_a_move_halts_the_arm_short_of_the_view_on_the_real_drivers(
+        scenario, q_first_pose, tmp_path, monkeypatch):
+    """The stop check runs in a thread beside the move to the second view (this stop says
+    stop after one pose once the arm has begun that move; the estimate is the cell box's,
+    made at once): the arm brakes and comes to rest short of the view, and the session ends
+    with the one pose on disk and no fault."""
+    moving = threading.Event()
+    arm = fake_rtde.FakeArm(q_first_pose, tau=0.1)
+    targets = []
+
+    def servo(arm, q):
+        targets.append(np.array(q, float))
+        if np.abs(targets[-1] - q_first_pose).max() > 1e-3:
+            moving.set()
+    arm.on_servo = servo
+
+    class StopOnceMoving:
+        def update(self, track):
+            assert moving.wait(10.0)
+            return "stop after one pose"
+    monkeypatch.setattr(episode, "make_stop", lambda planner, scenario: StopOnceMoving())
+    # The cell boxes for the estimate, at once: the stop comes as the move begins.
+    monkeypatch.setattr(episode, "episode_estimator", lambda scenario: EpisodeEstimator(None))
+    fake_rtde.install(monkeypatch, arm)
+    result = run_session(scenario, "heu", tmp_path / "out", confirm=lambda text: True)
+    assert result.fault is None and result.termination == "stop after one pose"
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["n_poses"] == 1
+    poses = heu_poses(place_object(scenario).mesh.bounds.mean(axis=0), scenario.heu)
+    second = MotionPlanner(scenario).plan(q_first_pose, poses[1]).q_target
+    assert np.abs(targets[-1] - second).max() > 0.01  # halted short of the second view
+    # Braked over several commands, each step shorter than the one before, not cut off.
+    steps = np.abs(np.diff(targets, axis=0)).max(axis=1)
+    braking = steps[np.argmax(steps):]
+    assert len(braking) >= 4 and np.all(np.diff(braking) < 0)
+    assert braking[-1] < braking[0] / 3
 
 
 def test_every_acquisition_is_on_disk_before_the_arm_leaves_its_pose(finished):

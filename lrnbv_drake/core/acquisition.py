@@ -4,7 +4,9 @@ it, let the map take it in, plan again.
 `AcquisitionSequencer.step` advances an `AcquisitionState` by one tick:
 
     PLAN      ask the policy for ranked viewpoints; plan a motion to the first reachable one
-    MOVE      play the trajectory (`command`) until it ends
+    MOVE      play the trajectory (`command`) until it ends; meanwhile, with a
+              `StopWhileMoving`, check the stop after the last acquisition and halt the move
+              (`MotionPlanning.halt`) if it says stop
     SETTLE    wait for a frame whose integration began `settle_frames` frame periods after
               the stop, then record it as an `Acquisition`; a proposal of `frames` > 1
               records that many consecutive new frames at the view, numbered in their info
@@ -13,7 +15,8 @@ it, let the map take it in, plan again.
               the updated map on the one after; then PLAN
     DONE      the policy is done, the stop rule says the reported box is known (`stop`, reading
               the estimates `AcquisitionInputs.estimates` gives once the extraction after
-              the last acquisition is logged), `max_poses`
+              the last acquisition is logged; while moving when the policy does not read
+              the estimate and a `StopWhileMoving` is given), `max_poses`
               frames were recorded, or no proposed viewpoint could be reached
               `max_failed_proposals` times in a row
 
@@ -31,7 +34,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation.track import EstimateTrack
+from lrnbv_drake.core.mapping.extraction import ExtractionResult
 from lrnbv_drake.core.planning.policy import (
     CANDIDATE_RANK,
     FRAME_OF_VIEW,
@@ -42,6 +47,7 @@ from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.core.robot.motion import MotionPlanning, Trajectory
 from lrnbv_drake.core.robot.self_filter import dropped_zones_info
 from lrnbv_drake.core.sensing.sensor import ToFFrame
+from lrnbv_drake.core.stop_while_moving import StopWhileMoving
 
 #: (frame, X_WS, q) -> (the frame without the zones that read the robot itself, their
 #: (res, res) mask in raw order): core/robot/self_filter.py's `drop_robot_zones` at joints q.
@@ -92,6 +98,9 @@ class EpisodeLog:
     # from the arm's stop (or the start, or its view's frame before) to the frame used.
     travel_seconds: list[float] = dc.field(default_factory=list)
     settle_seconds: list[float] = dc.field(default_factory=list)
+    # Cell time the arm waited at a view for the stop check begun as it moved there, seconds
+    # (computation the move did not cover).
+    stop_wait_seconds: list[float] = dc.field(default_factory=list)
     termination: str = ""
     # The last accepted proposal's drawable data (tree, cache, ROI), with its "step" number and
     # the chosen "X_WS". Kept here, not in the copied state: its arrays are large.
@@ -118,7 +127,18 @@ def carried_on(history: EpisodeLog) -> EpisodeLog:
         policy_seconds=list(history.policy_seconds),
         motion_seconds=list(history.motion_seconds),
         travel_seconds=list(history.travel_seconds),
-        settle_seconds=list(history.settle_seconds), termination="")
+        settle_seconds=list(history.settle_seconds),
+        stop_wait_seconds=list(history.stop_wait_seconds), termination="")
+
+
+def estimator_inputs(log: EpisodeLog) -> tuple[list[tuple[ToFFrame, np.ndarray]],
+                                                list[OrientedBox | None]]:
+    """What `EpisodeEstimator.update` folds in from `log`: each acquisition's (frame, X_WS)
+    and the cell box of each extraction logged (None where no object was found)."""
+    def cells(extraction: ExtractionResult | None) -> OrientedBox | None:
+        return extraction.oriented_box if extraction is not None and extraction.found else None
+    return ([(a.frame, a.X_WS) for a in log.acquisitions],
+            [cells(e) for e in log.extractions])
 
 
 @dc.dataclass(frozen=True)
@@ -138,10 +158,11 @@ class CycleTime:
 
 def cycle_time(log: EpisodeLog, other_computation: float = 0.0) -> CycleTime:
     """The episode's `CycleTime`: the trajectories' durations, the waits for frames, and the
-    measured planning time plus `other_computation` (map, clustering, box estimate)."""
+    measured planning time, the waits for stop checks plus `other_computation` (map,
+    clustering, box estimate)."""
     return CycleTime(motion=float(sum(log.travel_seconds)), settle=float(sum(log.settle_seconds)),
                      computation=float(sum(log.policy_seconds) + sum(log.motion_seconds)
-                                       + other_computation))
+                                       + sum(log.stop_wait_seconds) + other_computation))
 
 
 def motion_start(hold: np.ndarray, measured: np.ndarray) -> np.ndarray:
@@ -186,6 +207,10 @@ class AcquisitionState:
     view_frames: int = 1
     last_frame: tuple[int, int] = (0, 0)
     t_waiting: float = 0.0
+    # A stop check runs beside the move (`StopWhileMoving`); the reason it gave to stop, the
+    # move halted, once the arm is at rest.
+    checking: bool = False
+    halting: str | None = None
 
 
 class AcquisitionInputs(Protocol):
@@ -204,13 +229,15 @@ class AcquisitionSequencer:
     The policy keeps planner memory (cached nodes, visited cells) across steps, as the
     algorithm requires, so one sequencer runs one episode. `self_filter`, when given, takes
     the zones that read the robot itself out of each acquired frame before the map, the
-    clustering and the box fit see it.
+    clustering and the box fit see it. `stop_while_moving`, when given, checks the stop while
+    the arm moves for every policy that does not read the estimate.
     """
 
     def __init__(self, policy: ViewpointPolicy, motion: MotionPlanning, *, period: float,
                  frame_period: float, settle_frames: int = 1, max_poses: int = 50,
                  max_failed_proposals: int = 5, stop: BoxStop | None = None,
-                 self_filter: SelfFilter | None = None) -> None:
+                 self_filter: SelfFilter | None = None,
+                 stop_while_moving: StopWhileMoving | None = None) -> None:
         if not period > 0 or not frame_period > 0:
             raise ValueError(f"period and frame_period must be > 0, got {period} and "
                              f"{frame_period}")
@@ -224,6 +251,7 @@ class AcquisitionSequencer:
         self._max_failed = max_failed_proposals
         self._stop = stop
         self._self_filter = self_filter
+        self._beside = stop_while_moving
 
     def initial_state(self, q_initial: np.ndarray, history: EpisodeLog | None = None
                       ) -> AcquisitionState:
@@ -251,6 +279,12 @@ class AcquisitionSequencer:
             s.hold = np.asarray(s.trajectory.value(s.trajectory.end_time()), float).ravel()
             s.trajectory = None
             s.mode, s.t_stop, s.t_waiting = Mode.SETTLE, t, t
+            if s.halting is not None:
+                self._finish(s, s.halting)
+        elif s.mode is Mode.MOVE and s.checking:
+            self._collect(s, t)
+        elif s.mode is Mode.SETTLE and s.checking:
+            self._collect(s, t)
         elif s.mode is Mode.SETTLE:
             frame = inputs.frame()
             if (frame.sequence > 0 and (frame.sequence, frame.timestamp_us) != s.last_frame
@@ -284,6 +318,34 @@ class AcquisitionSequencer:
         s.pending_info = {}
         s.mode, s.t_ready = Mode.WAIT_MAP, t + MAP_WAIT_PERIODS * self._period
 
+    def _collect(self, s: AcquisitionState, t: float) -> None:
+        """Takes the stop check's result once it is known. Moving, a stop halts the move,
+        and a check done after the arrival (`StopCheck.ready_at`) is the arm's wait at the
+        view; at a view, the wait is until it was done, and a stop ends the episode."""
+        check = self._beside.result(t)
+        if check is None:
+            return
+        s.checking = False
+        if s.mode is Mode.MOVE:
+            if check.reason is not None:
+                halted = self._motion.halt(s.trajectory, t)
+                s.log.travel_seconds[-1] -= s.trajectory.end_time() - halted.end_time()
+                s.trajectory, s.halting = halted, check.reason
+            elif check.ready_at > s.trajectory.end_time():
+                s.log.stop_wait_seconds.append(check.ready_at - s.trajectory.end_time())
+            return
+        s.log.stop_wait_seconds.append(max(0.0, check.ready_at - s.t_waiting))
+        s.t_waiting = max(s.t_waiting, min(t, check.ready_at))
+        if check.reason is not None:
+            self._finish(s, check.reason)
+
+    def _stop_now(self, s: AcquisitionState, inputs: AcquisitionInputs) -> bool:
+        """Checks the stop in order, the arm at rest; True when it ended the episode."""
+        reason = self._stop.update(inputs.estimates()) if self._stop is not None else None
+        if reason is not None:
+            self._finish(s, reason)
+        return reason is not None
+
     @staticmethod
     def _finish(s: AcquisitionState, reason: str) -> None:
         s.mode = Mode.DONE
@@ -299,9 +361,12 @@ class AcquisitionSequencer:
             self._finish(s, f"reached the cap of {self._max_poses} poses")
             return
         started = time.perf_counter()
-        if observation.n_acquisitions > 0:
-            # The estimate is made pose by pose whatever the planner: each one's cycle time
-            # pays for it, and a report after a fault waits on no acquisition but the last.
+        # The estimate is made pose by pose whatever the planner: each one's cycle time pays
+        # for it, and a report after a fault waits on no acquisition but the last. Beside the
+        # next move when nothing else waits on it.
+        beside = (self._beside is not None and observation.n_acquisitions > 0
+                  and not self.policy.reads_estimate)
+        if observation.n_acquisitions > 0 and not beside:
             track = inputs.estimates()
             reason = self._stop.update(track) if self._stop is not None else None
             if reason is not None:
@@ -310,6 +375,9 @@ class AcquisitionSequencer:
                 return
             observation = dc.replace(observation, estimate=track.latest)
         proposal = self.policy.propose(observation)
+        if proposal.done and beside and self._stop_now(s, inputs):
+            s.log.policy_seconds.append(time.perf_counter() - started)
+            return
         s.log.policy_seconds.append(time.perf_counter() - started)
         if proposal.done:
             self._finish(s, proposal.reason)
@@ -331,9 +399,16 @@ class AcquisitionSequencer:
                 break
             failures.append((t, np.asarray(X_WS), plan.failure.value, plan.reason))
         s.log.motion_failures.extend(failures)
-        s.log.motion_seconds.append(time.perf_counter() - started)
         if s.mode is Mode.MOVE:
+            s.log.motion_seconds.append(time.perf_counter() - started)
             s.failed_in_a_row = 0
+            if beside:
+                self._beside.start(*estimator_inputs(s.log), t)
+                s.checking = True
+            return
+        stopped = beside and self._stop_now(s, inputs)
+        s.log.motion_seconds.append(time.perf_counter() - started)
+        if stopped:
             return
         s.failed_in_a_row += 1
         if s.failed_in_a_row >= self._max_failed or not proposal.candidates:

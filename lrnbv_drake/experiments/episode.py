@@ -34,6 +34,7 @@ from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
 from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
 from lrnbv_drake.core.robot.safety import RobotFault
+from lrnbv_drake.core.stop_while_moving import StopWhileMoving
 from lrnbv_drake.drivers.tof_serial import SensorError
 from lrnbv_drake.experiments.recording import save_frames, write_atomically
 from lrnbv_drake.experiments.report import (
@@ -137,15 +138,20 @@ def _around_cell(cell: Cell, scenario: Scenario, planner: str, meshcat: Meshcat 
     motion = MotionPlanner(scenario, bare_table=cell.models.placed_object is None)
     policy = make_policy(planner, scenario, motion, cell.models.placed_object)
     period = scenario.sensor.period / 2
+    stop = make_stop(planner, scenario)
+    estimator = episode_estimator(scenario) if planner != COMMISSION else None
+    # The real cell checks the stop in a thread beside the move; the simulated one models it
+    # (core/stop_while_moving.py).
+    beside = None if estimator is None or not scenario.planner.stop.while_moving else \
+        StopWhileMoving(estimator, stop, threaded=cell.hardware is not None)
     loop = builder.AddNamedSystem("acquisition_loop", AcquisitionLoop(
         policy, motion, scenario.robot.initial_position, period=period,
         frame_period=scenario.sensor.period, settle_frames=scenario.sensor.settle_frames,
-        max_poses=scenario.max_poses, history=history, stop=make_stop(planner, scenario),
-        self_filter=make_self_filter(scenario, motion)))
+        max_poses=scenario.max_poses, history=history, stop=stop,
+        self_filter=make_self_filter(scenario, motion), stop_while_moving=beside))
     estimation = None
-    if planner != COMMISSION:
-        estimation = builder.AddNamedSystem("estimation",
-                                            BoxEstimation(episode_estimator(scenario)))
+    if estimator is not None:
+        estimation = builder.AddNamedSystem("estimation", BoxEstimation(estimator))
         builder.Connect(loop.GetOutputPort("log"), estimation.GetInputPort("log"))
         builder.Connect(estimation.GetOutputPort("box_estimate"),
                         loop.GetInputPort("box_estimate"))

@@ -127,6 +127,10 @@ def episode_report(planner: str, scenario: Scenario, episode_log: EpisodeLog,
             "map_update_s": list(map_update_seconds),
             "clustering_s": episode_log.clustering_seconds,
             "box_estimate_s": list(track.seconds),
+            # Each move's duration (the last one halted when the stop came during it), and
+            # the arm's waits at a view for a stop check begun as it moved there.
+            "travel_s": list(episode_log.travel_seconds),
+            "stop_wait_s": list(episode_log.stop_wait_seconds),
         },
         "scenario": yaml_dump_typed(scenario),
     }

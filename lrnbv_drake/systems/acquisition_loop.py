@@ -26,6 +26,7 @@ from lrnbv_drake.core.planning.policy import Observation, ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.core.robot.motion import MotionPlanning
 from lrnbv_drake.core.sensing.sensor import ToFFrame
+from lrnbv_drake.core.stop_while_moving import StopWhileMoving
 
 
 class _PortInputs:
@@ -85,6 +86,10 @@ class AcquisitionLoop(LeafSystem):
     periodic unrestricted update steps the sequencer and returns ReachedTermination when the
     episode is done.
 
+    `stop_while_moving` (sharing the `BoxEstimation` system's estimator) checks the stop
+    beside each move when the policy does not read the estimate; `box_estimate` is then
+    read only where the loop checks in order.
+
     `history`, when it holds acquisitions, is an episode to carry on (`initial_state`): the
     policy and the map are the caller's to restore (`ViewpointPolicy.restore`,
     `OccupancyMapSystem.insert_recorded`).
@@ -94,12 +99,14 @@ class AcquisitionLoop(LeafSystem):
                  *, period: float, frame_period: float, settle_frames: int = 1,
                  max_poses: int = 50, max_failed_proposals: int = 5,
                  history: EpisodeLog | None = None, stop: BoxStop | None = None,
-                 self_filter: SelfFilter | None = None):
+                 self_filter: SelfFilter | None = None,
+                 stop_while_moving: StopWhileMoving | None = None):
         super().__init__()
         self._sequencer = AcquisitionSequencer(
             policy, motion, period=period, frame_period=frame_period,
             settle_frames=settle_frames, max_poses=max_poses,
-            max_failed_proposals=max_failed_proposals, stop=stop, self_filter=self_filter)
+            max_failed_proposals=max_failed_proposals, stop=stop, self_filter=self_filter,
+            stop_while_moving=stop_while_moving)
         self.DeclareVectorInputPort("position_measured", 6)
         self.DeclareAbstractInputPort("tof_frame", AbstractValue.Make(ToFFrame.empty()))
         self.DeclareAbstractInputPort("X_WS", AbstractValue.Make(RigidTransform()))

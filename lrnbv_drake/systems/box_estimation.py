@@ -6,13 +6,8 @@ from __future__ import annotations
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, LeafSystem
 
-from lrnbv_drake.core.acquisition import EpisodeLog
+from lrnbv_drake.core.acquisition import EpisodeLog, estimator_inputs
 from lrnbv_drake.core.estimation.track import EpisodeEstimator, EstimateTrack
-from lrnbv_drake.core.mapping.extraction import ExtractionResult
-
-
-def _cell_box(extraction: ExtractionResult | None):
-    return extraction.oriented_box if extraction is not None and extraction.found else None
 
 
 class BoxEstimation(LeafSystem):
@@ -43,8 +38,7 @@ class BoxEstimation(LeafSystem):
 
     def _update(self, context: Context, final: bool) -> EstimateTrack:
         log: EpisodeLog = self._log.Eval(context)
-        return self._estimator.update([(a.frame, a.X_WS) for a in log.acquisitions],
-                                      [_cell_box(e) for e in log.extractions], final=final)
+        return self._estimator.update(*estimator_inputs(log), final=final)
 
     def _calc(self, context: Context, output: AbstractValue) -> None:
         output.set_value(self._update(context, final=False))

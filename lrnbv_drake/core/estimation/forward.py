@@ -144,7 +144,7 @@ class ReadingRule:
                 self.merged_mode)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _interval(o, d, x, c, s, table, clip):
     """(t0, t1): where the ray o + t d is inside part x, whose yaw has cosine c and sine s
     (and the clip plane); t0 > t1 if nowhere."""
@@ -183,7 +183,7 @@ def _interval(o, d, x, c, s, table, clip):
     return t0, t1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _visible(t0, t1, solid, floor):
     """The first point at t >= 0 inside a solid interval and in no hole's interior, or
     `floor` (the table's depth) where that is nearer."""
@@ -210,7 +210,7 @@ def _visible(t0, t1, solid, floor):
     return best
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def table_depths(origins, directions, table, extent):
     """(n, m) each sub-ray's depth to the table top z = table within its footprint `extent`
     (x_min, y_min, x_max, y_max); inf where it never gets there."""
@@ -228,7 +228,7 @@ def table_depths(origins, directions, table, extent):
     return out
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def shape_depths(origins, directions, planes, parts, solid, base, table, clip):
     """(n, m) each sub-ray's depth to the shape (`parts`, `solid` their kinds; the clip plane
     cuts the solids) or the table (`base`); a part a zone's bundle (`planes`) misses is not
@@ -253,7 +253,7 @@ def shape_depths(origins, directions, planes, parts, solid, base, table, clip):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _reading(depths, min_count, gap_m, slope, merge_m, strongest, merged_mode, work):
     """The model's reading of one zone from its sub-rays' depths (inf: no return); NaN where
     the rule reports nothing. `work`: (3 m + 4) scratch."""
@@ -285,7 +285,7 @@ def _reading(depths, min_count, gap_m, slope, merge_m, strongest, merged_mode, w
     return target[0]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _loss(measured, sigma, predicted, scale, no_return):
     """Soft-L1 of the residual in sigmas, `no_return` sigmas where nothing is predicted."""
     r = no_return if math.isnan(predicted) else (measured - predicted) / sigma
@@ -293,7 +293,7 @@ def _loss(measured, sigma, predicted, scale, no_return):
     return 2.0 * scale * scale * (math.sqrt(1.0 + q * q) - 1.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def zone_losses(depths, measured, sigma, min_count, gap_m, slope, merge_m, strongest,
                 merged_mode, scale, no_return):
     """(n,) each zone's reading (`_reading`) and its loss."""
@@ -306,7 +306,7 @@ def zone_losses(depths, measured, sigma, min_count, gap_m, slope, merge_m, stron
     return predicted, out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _misses(o, planes, x, c, s, floor):
     """Whether box x (yaw cosine c, sine s) standing on z = floor lies wholly beyond one of a
     zone's bundle `planes` (4, 3) through its origin o, so that none of its sub-rays meets
@@ -327,7 +327,7 @@ def _misses(o, planes, x, c, s, floor):
     return False
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def crossing(origins, directions, planes, rows, x, floor, before=None):
     """(len(rows), m) whether each sub-ray of zones `rows` passes through box x standing on
     z = floor (its rounding ignored) and, with `before` (n, m) depths, enters it no farther
@@ -349,7 +349,7 @@ def crossing(origins, directions, planes, rows, x, floor, before=None):
     return out
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def grid_costs(origins, directions, measured, sigma, zones, starts, subrays, parts, solid,
                k, xs, depths, base, table, min_count, gap_m, slope, merge_m, strongest,
                merged_mode, scale, no_return):

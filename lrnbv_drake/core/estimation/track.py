@@ -10,6 +10,7 @@ estimated again exactly (`lrnbv refit`).
 from __future__ import annotations
 
 import dataclasses as dc
+import threading
 import time
 from collections.abc import Sequence
 
@@ -45,6 +46,9 @@ class EpisodeEstimator:
     def __init__(self, estimator: ShapeEstimator | None) -> None:
         self._estimator = estimator
         self._track = EstimateTrack()
+        #: Held by `update`; a thread that also reads what the estimates compute lazily (the
+        #: stop rule's interval) holds it for as long (core/stop_while_moving.py).
+        self.lock = threading.RLock()
 
     @property
     def track(self) -> EstimateTrack:
@@ -55,6 +59,11 @@ class EpisodeEstimator:
         """The track after every reading whose cell box is known (`cell_boxes[i]` the one
         after reading i; None where no object was found) or, `final`, every reading, the
         last ones started from the last cell box known."""
+        with self.lock:
+            return self._update(readings, cell_boxes, final)
+
+    def _update(self, readings: Sequence[tuple[ToFFrame, np.ndarray]],
+                cell_boxes: Sequence[OrientedBox | None], final: bool) -> EstimateTrack:
         done = len(self._track.estimates)
         upto = len(readings) if final else min(len(readings), len(cell_boxes))
         estimates, seconds = list(self._track.estimates), list(self._track.seconds)
@@ -74,8 +83,9 @@ class EpisodeEstimator:
 
 def compile_kernels() -> None:
     """Compiles the estimator's kernels into numba's on-disk cache by estimating a box from
-    one frame of a flat table, so that the first estimate of a process (the first pose's,
-    or the report after a fault on the cell) does not wait for them
+    one frame of a flat table and its interval, so that the first estimate of a process (the
+    first pose's, a stop check's beside a move, or the report after a fault on the cell) does
+    not wait for them
     (`python -m lrnbv_drake.core.kernels`)."""
     from lrnbv_drake.core.sensing.sensor import SensorModelParams
     from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
@@ -86,4 +96,5 @@ def compile_kernels() -> None:
     for behaviour in (DeviceBehaviour(), DeviceBehaviour("strongest", 600.0)):
         estimator = ShapeEstimator(SensorModelParams(), behaviour, 0.0, (-1, -1, 1, 1))
         estimator.add(frame, X_WS)
-        estimator.estimate(OrientedBox(np.array([0.0, 0.0, 0.025]), np.full(3, 0.05)))
+        box = OrientedBox(np.array([0.0, 0.0, 0.025]), np.full(3, 0.05))
+        assert estimator.estimate(box).widths is not None  # the interval the stop reads

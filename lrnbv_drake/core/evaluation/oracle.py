@@ -170,6 +170,7 @@ class OraclePolicy(ViewpointPolicy):
 
     name = ORACLE
     capture_initial = False
+    reads_estimate = True  # it stops once the estimate is within the tolerance
 
     def __init__(self, views: np.ndarray, covers: np.ndarray, true_dims: np.ndarray,
                  tolerance: float, ik: IK, travel_time: TravelTime):

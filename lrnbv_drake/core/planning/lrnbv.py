@@ -104,6 +104,7 @@ class LrNbvPolicy(ViewpointPolicy):
         self.first_view = None if first_view is None else np.asarray(first_view, float)
         self.capture_initial = first_view is None
         self.utility = UtilityFunction(weights, params.gains.normalize)
+        self.reads_estimate = weights.box != 0  # the box gain's bands
         self.rays = sensor_rays(geometry, params.gains.rays_per_zone)
         self.workspace = workspace
         self.ik = ik

@@ -83,6 +83,9 @@ class ViewpointPolicy(abc.ABC):
     name: str = "policy"
     #: Whether the loop captures a frame at the start pose before the first proposal.
     capture_initial: bool = False
+    #: Whether `propose` reads `Observation.estimate`: the loop then makes the estimate and
+    #: checks the stop before proposing, not while the arm moves (core/stop_while_moving.py).
+    reads_estimate: bool = False
 
     @abc.abstractmethod
     def propose(self, observation: Observation) -> Proposal:
