@@ -1,6 +1,7 @@
 """How late the servo stream's ticks come while the stop check (the box estimate and the stop
 rule) runs in a thread beside them, as on the real cell during a move
-(core/stop_while_moving.py), against the same stream with nothing beside it in the same run.
+(core/planning/stop_while_moving.py), against the same stream with nothing beside it in the
+same run.
 
 A Drake diagram whose one system publishes every `hardware.servo_period` (8 ms), as the
 command sender does, runs at real-time rate 1 while a `StopWhileMoving` thread estimates,
@@ -23,10 +24,10 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, EventStatus, LeafSystem
 
-from lrnbv_drake.core import stop_while_moving
 from lrnbv_drake.core.acquisition import estimator_inputs
+from lrnbv_drake.core.planning import stop_while_moving
 from lrnbv_drake.core.planning.stop import BoxStop
-from lrnbv_drake.core.stop_while_moving import StopWhileMoving
+from lrnbv_drake.core.planning.stop_while_moving import StopWhileMoving
 from lrnbv_drake.experiments.episode import run_episode
 from lrnbv_drake.station.parts import episode_estimator
 from lrnbv_drake.station.scenario import Scenario, override

@@ -1,5 +1,5 @@
-"""Stand-ins for the estimator and the stop rule that a stop check (core/stop_while_moving.py)
-runs: what the loop's tests need of them and no more."""
+"""Stand-ins for the estimator and the stop rule that a stop check runs
+(core/planning/stop_while_moving.py): what the loop's tests need of them and no more."""
 
 import threading
 import time

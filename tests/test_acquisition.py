@@ -15,9 +15,9 @@ from lrnbv_drake.core.acquisition import (
 )
 from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.planning.policy import FRAME_OF_VIEW, Observation, Proposal, ViewpointPolicy
+from lrnbv_drake.core.planning.stop_while_moving import StopWhileMoving
 from lrnbv_drake.core.robot.motion import MotionFailure, MotionPlan
 from lrnbv_drake.core.sensing.sensor import ToFFrame
-from lrnbv_drake.core.stop_while_moving import StopWhileMoving
 
 PERIOD, FRAME_PERIOD = 0.05, 0.1
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from stop_stand_ins import CountingEstimator, StopAfter
 
-from lrnbv_drake.core.stop_while_moving import StopWhileMoving
+from lrnbv_drake.core.planning.stop_while_moving import StopWhileMoving
 
 
 def _readings(n):

@@ -44,10 +44,10 @@ from lrnbv_drake.core.planning.policy import (
     ViewpointPolicy,
 )
 from lrnbv_drake.core.planning.stop import BoxStop
+from lrnbv_drake.core.planning.stop_while_moving import StopWhileMoving
 from lrnbv_drake.core.robot.motion import MotionPlanning, Trajectory
 from lrnbv_drake.core.robot.self_filter import dropped_zones_info
 from lrnbv_drake.core.sensing.sensor import ToFFrame
-from lrnbv_drake.core.stop_while_moving import StopWhileMoving
 
 #: (frame, X_WS, q) -> (the frame without the zones that read the robot itself, their
 #: (res, res) mask in raw order): core/robot/self_filter.py's `drop_robot_zones` at joints q.

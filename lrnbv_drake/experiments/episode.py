@@ -33,8 +33,8 @@ from pydrake.systems.framework import Context, Diagram, DiagramBuilder, EventSta
 from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
 from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.planning.policy import ViewpointPolicy
+from lrnbv_drake.core.planning.stop_while_moving import StopWhileMoving
 from lrnbv_drake.core.robot.safety import RobotFault
-from lrnbv_drake.core.stop_while_moving import StopWhileMoving
 from lrnbv_drake.drivers.tof_serial import SensorError
 from lrnbv_drake.experiments.recording import save_frames, write_atomically
 from lrnbv_drake.experiments.report import (
@@ -141,7 +141,7 @@ def _around_cell(cell: Cell, scenario: Scenario, planner: str, meshcat: Meshcat 
     stop = make_stop(planner, scenario)
     estimator = episode_estimator(scenario) if planner != COMMISSION else None
     # The real cell checks the stop in a thread beside the move; the simulated one models it
-    # (core/stop_while_moving.py).
+    # (core/planning/stop_while_moving.py).
     beside = None if estimator is None or not scenario.planner.stop.while_moving else \
         StopWhileMoving(estimator, stop, threaded=cell.hardware is not None)
     loop = builder.AddNamedSystem("acquisition_loop", AcquisitionLoop(

@@ -24,9 +24,9 @@ from lrnbv_drake.core.acquisition import (
 from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.planning.policy import Observation, ViewpointPolicy
 from lrnbv_drake.core.planning.stop import BoxStop
+from lrnbv_drake.core.planning.stop_while_moving import StopWhileMoving
 from lrnbv_drake.core.robot.motion import MotionPlanning
 from lrnbv_drake.core.sensing.sensor import ToFFrame
-from lrnbv_drake.core.stop_while_moving import StopWhileMoving
 
 
 class _PortInputs:

@@ -47,7 +47,7 @@ class EpisodeEstimator:
         self._estimator = estimator
         self._track = EstimateTrack()
         #: Held by `update`; a thread that also reads what the estimates compute lazily (the
-        #: stop rule's interval) holds it for as long (core/stop_while_moving.py).
+        #: stop rule's interval) holds it for as long (core/planning/stop_while_moving.py).
         self.lock = threading.RLock()
 
     @property

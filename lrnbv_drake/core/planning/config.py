@@ -70,7 +70,7 @@ class StopParams:
     interval_width: float = 0.02
     # Make the estimate after a pose, and check this rule on it, while the arm moves to the
     # next view, halting the move if it says stop, for every planner that does not read the
-    # estimate to choose the view (core/stop_while_moving.py): the same poses and box as
+    # estimate to choose the view (core/planning/stop_while_moving.py): the same poses and box as
     # false, which checks before planning, in a shorter cycle.
     while_moving: bool = True
 

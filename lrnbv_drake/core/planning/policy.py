@@ -84,7 +84,7 @@ class ViewpointPolicy(abc.ABC):
     #: Whether the loop captures a frame at the start pose before the first proposal.
     capture_initial: bool = False
     #: Whether `propose` reads `Observation.estimate`: the loop then makes the estimate and
-    #: checks the stop before proposing, not while the arm moves (core/stop_while_moving.py).
+    #: checks the stop before proposing, not while the arm moves (stop_while_moving.py).
     reads_estimate: bool = False
 
     @abc.abstractmethod
