@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from lrnbv_drake.core.evaluation.objects import PAPER_OBJECTS
-from lrnbv_drake.core.mapping.extraction import extract_object
+from lrnbv_drake.core.mapping.extraction import extract_object, found_box
 from lrnbv_drake.experiments.campaign.plan import (
     FAMILY_PLACEMENT,
     CampaignConfig,
@@ -72,8 +72,7 @@ def main() -> None:
                                      "heu", out)
             log, true = result.log, np.array(result.report["metrics"]["true_box"]["dims"])
             params = extraction_params(scenario)
-            boxes = [e.oriented_box if e is not None and e.found else None
-                     for e in log.extractions][:args.poses]
+            boxes = [found_box(e) for e in log.extractions][:args.poses]
             for e in log.extractions[:args.poses]:
                 if e is not None and e.object_points is not None:
                     started = time.perf_counter()

@@ -15,6 +15,7 @@ class CountingEstimator:
         self.lock = threading.RLock()
         self.seconds, self.release, self.error = seconds, release, error
         self.calls = 0
+        self.track = EstimateTrack()
 
     def update(self, readings, cell_boxes, final=False):
         self.calls += 1
@@ -23,7 +24,8 @@ class CountingEstimator:
         time.sleep(self.seconds)
         if self.error is not None:
             raise self.error
-        return EstimateTrack((None,) * min(len(readings), len(cell_boxes)))
+        self.track = EstimateTrack((None,) * min(len(readings), len(cell_boxes)))
+        return self.track
 
 
 class StopAfter:

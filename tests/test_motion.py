@@ -89,11 +89,28 @@ def test_a_halted_move_stops_on_its_segment_within_the_limits_no_later_than_its_
     assert np.all(np.diff(s) >= -1e-12) and s[-1] <= 1.0 + 1e-12
 
 
-def test_halting_a_move_at_rest_holds_where_it_is():
-    move = trapezoidal_trajectory(np.array([[0.0] * 6, [1.0] * 6]), np.ones(6), np.ones(6))
-    dut = halted(move, move.end_time() + 0.5, np.ones(6))
-    np.testing.assert_allclose(dut.value(dut.end_time()).ravel(), 1.0)
-    assert dut.end_time() - dut.start_time() < 0.01
+@pytest.mark.parametrize("offset", [-1.5, -0.05, 0.0, 0.05])
+def test_a_detour_halted_about_its_waypoint_stays_on_the_segment_it_was_on(offset):
+    """A path through a via point stops there (its first segment a 2 s triangle by hand):
+    halted while it speeds up, the arm stops a quarter of the way, 0.25 rad; while it brakes
+    for the via point, at the via point, no further; at it, it holds; after it, it is on the
+    second segment."""
+    waypoints = np.array([[0.0] * 6, [1.0, 0.5, 0, 0, 0, 0], [1.0, 0.5, 1.0, 0, 0, 0]])
+    move = trapezoidal_trajectory(waypoints, np.ones(6), np.ones(6))
+    t_via = next(t for t in move.get_segment_times()
+                 if np.allclose(move.value(t).ravel(), waypoints[1], atol=1e-12))
+    dut = halted(move, t_via + offset, np.ones(6))
+    end = dut.value(dut.end_time()).ravel()
+    if offset < 0:  # on the first segment, short of the via point
+        np.testing.assert_allclose(end[2:], 0.0, atol=1e-12)
+        assert end[0] == pytest.approx(0.25 if offset == -1.5 else 1.0)
+        assert end[1] == pytest.approx(end[0] / 2)
+    elif offset == 0:  # at the via point, at rest
+        np.testing.assert_allclose(end, waypoints[1], atol=1e-12)
+        assert dut.end_time() - dut.start_time() < 0.01
+    else:  # on the second segment: only joint 2 moves
+        np.testing.assert_allclose(end[:2], [1.0, 0.5], atol=1e-12)
+        assert 0 < end[2] < 1.0
 
 
 @pytest.fixture(scope="module")

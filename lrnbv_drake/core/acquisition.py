@@ -36,7 +36,7 @@ import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation.track import EstimateTrack
-from lrnbv_drake.core.mapping.extraction import ExtractionResult
+from lrnbv_drake.core.mapping.extraction import found_box
 from lrnbv_drake.core.planning.policy import (
     CANDIDATE_RANK,
     FRAME_OF_VIEW,
@@ -135,10 +135,8 @@ def estimator_inputs(log: EpisodeLog) -> tuple[list[tuple[ToFFrame, np.ndarray]]
                                                 list[OrientedBox | None]]:
     """What `EpisodeEstimator.update` folds in from `log`: each acquisition's (frame, X_WS)
     and the cell box of each extraction logged (None where no object was found)."""
-    def cells(extraction: ExtractionResult | None) -> OrientedBox | None:
-        return extraction.oriented_box if extraction is not None and extraction.found else None
     return ([(a.frame, a.X_WS) for a in log.acquisitions],
-            [cells(e) for e in log.extractions])
+            [found_box(e) for e in log.extractions])
 
 
 @dc.dataclass(frozen=True)
@@ -281,9 +279,7 @@ class AcquisitionSequencer:
             s.mode, s.t_stop, s.t_waiting = Mode.SETTLE, t, t
             if s.halting is not None:
                 self._finish(s, s.halting)
-        elif s.mode is Mode.MOVE and s.checking:
-            self._collect(s, t)
-        elif s.mode is Mode.SETTLE and s.checking:
+        elif s.checking:  # moving, or arrived before the check was done
             self._collect(s, t)
         elif s.mode is Mode.SETTLE:
             frame = inputs.frame()
@@ -339,12 +335,16 @@ class AcquisitionSequencer:
         if check.reason is not None:
             self._finish(s, check.reason)
 
-    def _stop_now(self, s: AcquisitionState, inputs: AcquisitionInputs) -> bool:
-        """Checks the stop in order, the arm at rest; True when it ended the episode."""
-        reason = self._stop.update(inputs.estimates()) if self._stop is not None else None
+    def _stop_now(self, s: AcquisitionState, inputs: AcquisitionInputs
+                  ) -> EstimateTrack | None:
+        """Makes the estimate and checks the stop in order, the arm at rest: the track, or
+        None when the stop ended the episode."""
+        track = inputs.estimates()
+        reason = self._stop.update(track) if self._stop is not None else None
         if reason is not None:
             self._finish(s, reason)
-        return reason is not None
+            return None
+        return track
 
     @staticmethod
     def _finish(s: AcquisitionState, reason: str) -> None:
@@ -367,18 +367,16 @@ class AcquisitionSequencer:
         beside = (self._beside is not None and observation.n_acquisitions > 0
                   and not self.policy.reads_estimate)
         if observation.n_acquisitions > 0 and not beside:
-            track = inputs.estimates()
-            reason = self._stop.update(track) if self._stop is not None else None
-            if reason is not None:
+            track = self._stop_now(s, inputs)
+            if track is None:
                 s.log.policy_seconds.append(time.perf_counter() - started)
-                self._finish(s, reason)
                 return
             observation = dc.replace(observation, estimate=track.latest)
         proposal = self.policy.propose(observation)
-        if proposal.done and beside and self._stop_now(s, inputs):
-            s.log.policy_seconds.append(time.perf_counter() - started)
-            return
+        stopped = proposal.done and beside and self._stop_now(s, inputs) is None
         s.log.policy_seconds.append(time.perf_counter() - started)
+        if stopped:
+            return
         if proposal.done:
             self._finish(s, proposal.reason)
             return
@@ -406,7 +404,7 @@ class AcquisitionSequencer:
                 self._beside.start(*estimator_inputs(s.log), t)
                 s.checking = True
             return
-        stopped = beside and self._stop_now(s, inputs)
+        stopped = beside and self._stop_now(s, inputs) is None
         s.log.motion_seconds.append(time.perf_counter() - started)
         if stopped:
             return

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
-from lrnbv_drake.core.mapping.extraction import extract_object
+from lrnbv_drake.core.mapping.extraction import extract_object, found_box
 from lrnbv_drake.core.robot.poses import offset_transform
 from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.experiments.recording import frames_from_arrays, load_recording
@@ -30,7 +30,6 @@ from lrnbv_drake.experiments.report import (
     box_entry,
     container_entry,
     estimate_readings,
-    found_box,
     rounded,
 )
 from lrnbv_drake.station.parts import extraction_params, map_system, packing_decision

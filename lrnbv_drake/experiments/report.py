@@ -18,6 +18,7 @@ from lrnbv_drake.core.estimation.track import EstimateTrack
 from lrnbv_drake.core.evaluation import metrics
 from lrnbv_drake.core.evaluation.objects import PlacedObject, sample_surface
 from lrnbv_drake.core.evaluation.packing import PackingDecision, packing_metrics
+from lrnbv_drake.core.mapping.extraction import found_box
 from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.station.parts import container_catalogue, episode_estimator
 from lrnbv_drake.station.scenario import Scenario
@@ -53,11 +54,6 @@ def json_default(value: Any) -> Any:
 
 def _final_extraction(episode_log: EpisodeLog):
     return episode_log.extractions[-1] if episode_log.extractions else None
-
-
-def found_box(extraction) -> OrientedBox | None:
-    """The object's cell box from an extraction, or None when it found no object."""
-    return extraction.oriented_box if extraction is not None and extraction.found else None
 
 
 def estimate_readings(scenario: Scenario, readings: Sequence[tuple[ToFFrame, np.ndarray]],

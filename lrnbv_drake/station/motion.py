@@ -99,6 +99,7 @@ def halted(trajectory: PiecewisePolynomial, t: float, max_acceleration: np.ndarr
     point was checked for collisions. The trapezoid's own braking is the limiting joint's at
     its limit, the same rate as this one's, so the arm stops no later on the segment than the
     trapezoid would have (before its end)."""
+    t = min(max(t, trajectory.start_time()), trajectory.end_time())
     q = np.asarray(trajectory.value(t), float).ravel()
     v = np.asarray(trajectory.EvalDerivative(t, 1), float).ravel()
     duration = float(np.max(np.abs(v) / max_acceleration))

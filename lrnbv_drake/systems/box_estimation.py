@@ -23,7 +23,8 @@ class BoxEstimation(LeafSystem):
 
     `log` is the acquisition loop's `EpisodeLog`; `box_estimate` the `EstimateTrack`: the
     estimate after each acquisition whose extraction the log holds (the loop logs it when
-    it next plans, and the stop rule reads this port then), the latest last. Like the map,
+    it next plans; the stop rule reads this port then when it checks before planning, and
+    shares this system's estimator when it checks during the move), the latest last. Like the map,
     the estimator keeps its warm start outside the Context: the output is computed whenever
     it is asked (not cached), folds in only what is new, and one system serves one episode.
     """
@@ -45,8 +46,9 @@ class BoxEstimation(LeafSystem):
 
     @property
     def made(self) -> EstimateTrack:
-        """The estimates made so far, without making any."""
-        return self._estimator.track
+        """The estimates made so far, without making any (once a stop check running beside
+        the move has made its own)."""
+        return self._estimator.settled()
 
     def final_track(self, context: Context) -> EstimateTrack:
         """The track with every acquisition folded in, those after the last extraction from

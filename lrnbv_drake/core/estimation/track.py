@@ -9,16 +9,20 @@ estimated again exactly (`lrnbv refit`).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses as dc
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator
 from lrnbv_drake.core.sensing.sensor import ToFFrame
+
+#: Seconds `EpisodeEstimator.update` waits for a stop check in another thread to finish.
+LOCK_TIMEOUT = 300.0
 
 
 @dc.dataclass(frozen=True)
@@ -46,8 +50,9 @@ class EpisodeEstimator:
     def __init__(self, estimator: ShapeEstimator | None) -> None:
         self._estimator = estimator
         self._track = EstimateTrack()
-        #: Held by `update`; a thread that also reads what the estimates compute lazily (the
-        #: stop rule's interval) holds it for as long (core/planning/stop_while_moving.py).
+        #: Held by `update`, and by a stop check in a thread for its estimate and the stop
+        #: rule's reading of it (core/planning/stop_while_moving.py): whoever estimates
+        #: meanwhile (the report after a fault) waits, at most `LOCK_TIMEOUT`.
         self.lock = threading.RLock()
 
     @property
@@ -59,8 +64,23 @@ class EpisodeEstimator:
         """The track after every reading whose cell box is known (`cell_boxes[i]` the one
         after reading i; None where no object was found) or, `final`, every reading, the
         last ones started from the last cell box known."""
-        with self.lock:
+        with self._locked():
             return self._update(readings, cell_boxes, final)
+
+    def settled(self) -> EstimateTrack:
+        """`track` once a stop check estimating in another thread is done."""
+        with self._locked():
+            return self._track
+
+    @contextlib.contextmanager
+    def _locked(self) -> Iterator[None]:
+        if not self.lock.acquire(timeout=LOCK_TIMEOUT):
+            raise TimeoutError(f"the box estimate waited {LOCK_TIMEOUT:.0f} s for a stop check "
+                               f"that is still running")
+        try:
+            yield
+        finally:
+            self.lock.release()
 
     def _update(self, readings: Sequence[tuple[ToFFrame, np.ndarray]],
                 cell_boxes: Sequence[OrientedBox | None], final: bool) -> EstimateTrack:

@@ -172,6 +172,11 @@ class ExtractionResult:
         return self.status is ExtractionStatus.FOUND
 
 
+def found_box(extraction: ExtractionResult | None) -> OrientedBox | None:
+    """The object's cell box from an extraction, or None when it found no object."""
+    return extraction.oriented_box if extraction is not None and extraction.found else None
+
+
 def fit_table_height(
     points: np.ndarray, threshold: float, iterations: int, rng: np.random.Generator
 ) -> float:

@@ -36,8 +36,9 @@ from lrnbv_drake.core.estimation.track import EpisodeEstimator
 from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.core.sensing.sensor import ToFFrame
 
-#: Seconds a threaded check may take before the loop gives up on it as a fault (an estimate
-#: takes well under one on the campaigns' objects, a few on the slowest).
+#: Seconds a threaded check may take per reading it folds in before the loop gives up on it
+#: as a fault (an estimate takes well under one on the campaigns' objects, 5-15 on the
+#: slowest; a resumed session's first check folds in every reading before it).
 CHECK_TIMEOUT = 120.0
 #: Cores a threaded check's parallel kernels leave to the loop's thread: with none, the servo
 #: stream's ticks came up to twice as late (benchmarks/bench_servo_beside_estimate.py).
@@ -46,11 +47,10 @@ SPARE_CORES = 1
 
 @dc.dataclass(frozen=True)
 class StopCheck:
-    """A finished check: why to stop (None: go on), the seconds it took and the time it was
-    (or, modelled, would have been) done."""
+    """A finished check: why to stop (None: go on) and the time it was (or, modelled, would
+    have been) done."""
 
     reason: str | None
-    seconds: float
     ready_at: float
 
 
@@ -61,7 +61,7 @@ class StopWhileMoving:
                  threaded: bool, timeout: float = CHECK_TIMEOUT) -> None:
         self._estimator, self._stop = estimator, stop
         self._threaded, self._timeout = threaded, timeout
-        self._started = 0.0
+        self._started, self._allowed = 0.0, timeout
         self._thread: threading.Thread | None = None
         self._outcome: StopCheck | BaseException | None = None
 
@@ -76,6 +76,7 @@ class StopWhileMoving:
             raise RuntimeError("StopWhileMoving.start: the last check has not been collected")
         self._started = t
         readings, cell_boxes = list(readings), list(cell_boxes)
+        self._allowed = self._timeout * max(1, len(readings) - len(self._estimator.track.estimates))
         if not self._threaded:
             self._outcome = self._check(readings, cell_boxes, t)
             return
@@ -85,12 +86,13 @@ class StopWhileMoving:
 
     def result(self, t: float) -> StopCheck | None:
         """The check, once it is known at time t (see the module docstring); None before.
-        Raises what the check raised, or TimeoutError after `timeout` seconds."""
+        Raises what a threaded check raised (`start` raises it when not threaded), or
+        TimeoutError after `timeout` seconds for each reading the check folds in."""
         if self._thread is not None:
             if self._thread.is_alive():
-                if t - self._started > self._timeout:
+                if t - self._started > self._allowed:
                     raise TimeoutError(f"the stop check (box estimate) has run "
-                                       f"{t - self._started:.0f} s, over {self._timeout:.0f} s")
+                                       f"{t - self._started:.0f} s, over {self._allowed:.0f} s")
                 return None
             self._thread = None
             if isinstance(self._outcome, StopCheck):
@@ -116,5 +118,4 @@ class StopWhileMoving:
         with self._estimator.lock:
             track = self._estimator.update(readings, cell_boxes)
             reason = self._stop.update(track) if self._stop is not None else None
-        seconds = time.perf_counter() - started
-        return StopCheck(reason, seconds, t + seconds)
+        return StopCheck(reason, t + time.perf_counter() - started)
