@@ -205,9 +205,8 @@ class AcquisitionState:
     view_frames: int = 1
     last_frame: tuple[int, int] = (0, 0)
     t_waiting: float = 0.0
-    # A stop check runs beside the move (`StopWhileMoving`); the reason it gave to stop, the
-    # move halted, once the arm is at rest.
-    checking: bool = False
+    # The reason a stop check beside the move gave to stop, the move halted, once the arm is
+    # at rest.
     halting: str | None = None
 
 
@@ -279,7 +278,7 @@ class AcquisitionSequencer:
             s.mode, s.t_stop, s.t_waiting = Mode.SETTLE, t, t
             if s.halting is not None:
                 self._finish(s, s.halting)
-        elif s.checking:  # moving, or arrived before the check was done
+        elif self._beside is not None and self._beside.running:  # moving, or arrived first
             self._collect(s, t)
         elif s.mode is Mode.SETTLE:
             frame = inputs.frame()
@@ -321,7 +320,6 @@ class AcquisitionSequencer:
         check = self._beside.result(t)
         if check is None:
             return
-        s.checking = False
         if s.mode is Mode.MOVE:
             if check.reason is not None:
                 halted = self._motion.halt(s.trajectory, t)
@@ -402,7 +400,6 @@ class AcquisitionSequencer:
             s.failed_in_a_row = 0
             if beside:
                 self._beside.start(*estimator_inputs(s.log), t)
-                s.checking = True
             return
         stopped = beside and self._stop_now(s, inputs) is None
         s.log.motion_seconds.append(time.perf_counter() - started)

@@ -24,9 +24,10 @@ class BoxEstimation(LeafSystem):
     `log` is the acquisition loop's `EpisodeLog`; `box_estimate` the `EstimateTrack`: the
     estimate after each acquisition whose extraction the log holds (the loop logs it when
     it next plans; the stop rule reads this port then when it checks before planning, and
-    shares this system's estimator when it checks during the move), the latest last. Like the map,
-    the estimator keeps its warm start outside the Context: the output is computed whenever
-    it is asked (not cached), folds in only what is new, and one system serves one episode.
+    shares this system's estimator when it checks during the move), the latest last. Like
+    the map, the estimator keeps its warm start outside the Context: the output is computed
+    whenever it is asked (not cached), folds in only what is new, and one system serves one
+    episode.
     """
 
     def __init__(self, estimator: EpisodeEstimator) -> None:
