@@ -15,7 +15,7 @@ from lrnbv_drake.core.estimation import forward
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator, misfit_limit
 from lrnbv_drake.core.estimation.fit import Problem
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
-from lrnbv_drake.core.estimation.interval import intervals, slice_bounds
+from lrnbv_drake.core.estimation.interval import intervals, profile, slice_bounds
 from lrnbv_drake.core.estimation.params import EstimationParams
 from lrnbv_drake.core.estimation.shape import ROUNDINGS, Shape, box_shape, moved
 from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
@@ -282,6 +282,28 @@ def test_a_device_the_model_does_not_explain_is_flagged_and_its_interval_widens(
     assert off.misfit_flag and not own.misfit_flag
     assert np.all(off.widths > own.widths)
     assert np.all((off.dims_lower <= true_dims) & (true_dims <= off.dims_upper))
+
+
+def test_the_profile_reaches_past_a_rise_the_cost_falls_back_from():
+    """A staircase cost: 10 at rest, a 6-unit spike over 4-6 mm (one zone flipping), back to
+    11 until 30 mm, then 20. With a rise of 5 the farthest move within the level is 30 mm
+    (the middle of a bracket bisected to 0.5 mm); the first rise, at 4 mm, bounds nothing.
+    A cost that falls to 4 over 48-52 mm lowers the level to 9: the side reaches 52 mm.
+    A rise held over more than `span` bounds the side where it begins."""
+    def staircase(v):
+        return 16.0 if 0.004 <= v < 0.006 else 11.0 if v < 0.030 else 20.0
+    assert abs(profile(staircase, 0.1, 5.0, 10.0, 0.002) - 0.030) <= 0.00025 + 1e-12
+    assert profile(lambda v: 10.0, 0.1, 5.0, 10.0, 0.002) == 0.1
+
+    def dip_far(v):
+        return 4.0 if 0.048 <= v < 0.052 else 11.0
+    assert abs(profile(dip_far, 0.1, 5.0, 10.0, 0.002) - 0.052) <= 0.00025 + 1e-12
+    assert abs(profile(staircase, 0.1, 5.0, 10.0, 0.002, span=0.025) - 0.030) <= 0.00025 + 1e-12
+
+    def wide_spike(v):
+        return 16.0 if 0.004 <= v < 0.010 else 11.0
+    assert abs(profile(wide_spike, 0.1, 5.0, 10.0, 0.002, span=0.003) - 0.004) <= 0.00025 + 1e-12
+    assert profile(wide_spike, 0.1, 5.0, 10.0, 0.002, span=0.007) == 0.1
 
 
 @pytest.fixture(scope="module")

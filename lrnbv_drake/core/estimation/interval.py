@@ -1,5 +1,5 @@
-"""Each dimension's interval: how far each side of the box moves before the cost rises a
-set amount above the lowest found (a profile of the same objective the fit minimises),
+"""Each dimension's interval: the farthest each side of the box moves with the cost within a
+set amount of the lowest found (a profile of the same objective the fit minimises),
 widened to hold the box of every other class of a part that the readings fit within it.
 
 The moves hold the shape's class where it is, so they alone would leave out a shape the
@@ -19,32 +19,37 @@ from lrnbv_drake.core.estimation.forward import NO_CLIP
 from lrnbv_drake.core.estimation.shape import TOP, Shape, moved, part_of_box
 
 
-def profile(cost, reach: float, rise: float, best: float) -> float:
-    """How far a move can go before `cost(move)` rises by `rise` above the lowest cost met
-    on the way (doubling from 1 mm, then halving to 0.5 mm), at most `reach`: from the lowest,
-    not from `best`, as a cost that falls before it rises bounds nothing."""
-    lowest = best
-
-    def rises(step: float) -> bool:
-        nonlocal lowest
-        c = cost(step)
+def profile(cost, reach: float, rise: float, best: float, step: float,
+            span: float = math.inf) -> float:
+    """The farthest a move can go, at most `reach`, with `cost(move)` within `rise` of the
+    lowest cost met: scanned every `step` until the cost has stayed above that level for
+    more than `span` (or `reach` is met), then bisected to 0.5 mm past the farthest move
+    within. The objective is a staircase, not monotone in a move: a zone flipping as a side
+    crosses its sub-rays can rise above the level a step before the cost falls back, so the
+    first move that rises does not bound the side; a rise held over a zone's footprint
+    (`span`) does, as every zone the side was in has then been crossed whole. The level is
+    the lowest cost met, not `best`, as a cost that falls before it rises bounds nothing."""
+    moves, costs = [], []
+    while True:
+        moves.append(min(step * (len(moves) + 1), reach))
+        costs.append(cost(moves[-1]))
+        lowest = min(best, min(costs))
+        within = [i for i, c in enumerate(costs) if c - lowest < rise]
+        inside = moves[within[-1]] if within else 0.0
+        if moves[-1] >= reach or moves[-1] - inside > span:
+            break
+    if within and within[-1] == len(moves) - 1:
+        return reach
+    outside = moves[within[-1] + 1] if within else moves[0]
+    while outside - inside > 0.0005:
+        mid = (inside + outside) / 2
+        c = cost(mid)
         lowest = min(lowest, c)
-        return c - lowest >= rise
-
-    inside, step = 0.0, 0.001
-    while step < reach and not rises(step):
-        inside, step = step, 2 * step
-    if step >= reach:
-        if not rises(reach):
-            return reach
-        step = reach
-    while step - inside > 0.0005:
-        mid = (inside + step) / 2
-        if rises(mid):
-            step = mid
+        if c - lowest >= rise:
+            outside = mid
         else:
             inside = mid
-    return (inside + step) / 2
+    return (inside + outside) / 2
 
 
 def _extended(shape: Shape, direction: np.ndarray, support: float, value: float) -> Shape:
@@ -65,8 +70,8 @@ def _extended(shape: Shape, direction: np.ndarray, support: float, value: float)
     return shape
 
 
-def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: float
-              ) -> tuple[np.ndarray, np.ndarray, bool]:
+def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: float,
+              span: float = math.inf) -> tuple[np.ndarray, np.ndarray, bool]:
     """(lower, upper) of the box's length, width and height over the shapes whose cost lies
     within `rise` of the lowest found: the fit and each solid part re-classed (`classings`,
     searched within a centimetre), each shape's `slice_bounds` to the rise left above its
@@ -86,18 +91,19 @@ def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: floa
     for trial in [fit, *others]:
         left = level - trial.cost
         if left > 0.0:
-            low, high = slice_bounds(problem, trial, left, reach, floor)
+            low, high = slice_bounds(problem, trial, left, reach, floor, span)
             lower, upper = np.minimum(lower, low), np.maximum(upper, high)
     chosen = all(problem.score(other) >= problem.score(fit) for other in others)
     return np.maximum(lower, 0.0), upper, chosen
 
 
-def slice_bounds(problem: Problem, fit: Fit, rise: float, reach: float, floor: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def slice_bounds(problem: Problem, fit: Fit, rise: float, reach: float, floor: float,
+                 span: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
     """(lower, upper) of the box's length, width and height: how far each of its sides can
     move in (every solid clipped by it) and out (the solids that reach it extended), the
-    rest held, before the cost rises by `rise`, and at least `floor`. Each move
-    re-evaluates only the zones crossing the slab it can sweep."""
+    rest held, with the cost within `rise` (`profile`: scanned every two floors, the
+    staircase's step, until the cost has stayed above the level for `span`), and at least
+    `floor`. Each move re-evaluates only the zones crossing the slab it can sweep."""
     shape = fit.shape
     box = shape.box(problem.table)
     c, s = math.cos(box.yaw), math.sin(box.yaw)
@@ -135,8 +141,8 @@ def slice_bounds(problem: Problem, fit: Fit, rise: float, reach: float, floor: f
             parts[tall, 5] += value
             return cost(dc.replace(shape, parts=parts))
 
-        moves_in[i] = max(profile(inward, reach, rise, fit.cost), floor)
-        moves_out[i] = max(profile(outward, reach, rise, fit.cost), floor)
+        moves_in[i] = max(profile(inward, reach, rise, fit.cost, 2 * floor, span), floor)
+        moves_out[i] = max(profile(outward, reach, rise, fit.cost, 2 * floor, span), floor)
 
     def pairs(v: np.ndarray) -> np.ndarray:
         return np.array([v[0] + v[1], v[2] + v[3], v[4]])
