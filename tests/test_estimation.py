@@ -25,6 +25,9 @@ from lrnbv_drake.station.scenario import load_scenario
 
 MERGED = DeviceBehaviour(target_order="strongest", merge_mm=600.0)
 EXTENT = np.array([-1.0, -1.0, 2.0, 1.0])
+#: About a zone's footprint at the rendered views' range (5.6 degrees at 0.4 m): the
+#: interval's `span`.
+FOOTPRINT = 0.04
 
 
 def _down(height: float) -> np.ndarray:
@@ -285,25 +288,33 @@ def test_a_device_the_model_does_not_explain_is_flagged_and_its_interval_widens(
 
 
 def test_the_profile_reaches_past_a_rise_the_cost_falls_back_from():
-    """A staircase cost: 10 at rest, a 6-unit spike over 4-6 mm (one zone flipping), back to
-    11 until 30 mm, then 20. With a rise of 5 the farthest move within the level is 30 mm
-    (the middle of a bracket bisected to 0.5 mm); the first rise, at 4 mm, bounds nothing.
-    A cost that falls to 4 over 48-52 mm lowers the level to 9: the side reaches 52 mm.
-    A rise held over more than `span` bounds the side where it begins."""
+    """A staircase cost scanned every 2 mm: 10 at rest, a 6-unit spike over 3.5-5.5 mm (one
+    zone flipping), back to 11 until 29.5 mm, then 20. With a rise of 5 the side reaches
+    29.5 mm (the middle of a 0.5 mm bracket round it): the first rise bounds nothing, and a
+    span of 25 mm past the farthest move within (28 mm) finds the same. A cost that falls to
+    4 over 47.5-51.5 mm lowers the level to 9: the side reaches 51.5 mm. A rise held over
+    more than the span bounds the side where it begins; a cost above the level everywhere
+    leaves the first bracket's middle, 0.25 mm."""
     def staircase(v):
-        return 16.0 if 0.004 <= v < 0.006 else 11.0 if v < 0.030 else 20.0
-    assert abs(profile(staircase, 0.1, 5.0, 10.0, 0.002) - 0.030) <= 0.00025 + 1e-12
-    assert profile(lambda v: 10.0, 0.1, 5.0, 10.0, 0.002) == 0.1
+        return 16.0 if 0.0035 <= v < 0.0055 else 11.0 if v < 0.0295 else 20.0
 
     def dip_far(v):
-        return 4.0 if 0.048 <= v < 0.052 else 11.0
-    assert abs(profile(dip_far, 0.1, 5.0, 10.0, 0.002) - 0.052) <= 0.00025 + 1e-12
-    assert abs(profile(staircase, 0.1, 5.0, 10.0, 0.002, span=0.025) - 0.030) <= 0.00025 + 1e-12
+        return 4.0 if 0.0475 <= v < 0.0515 else 11.0
 
     def wide_spike(v):
-        return 16.0 if 0.004 <= v < 0.010 else 11.0
-    assert abs(profile(wide_spike, 0.1, 5.0, 10.0, 0.002, span=0.003) - 0.004) <= 0.00025 + 1e-12
-    assert profile(wide_spike, 0.1, 5.0, 10.0, 0.002, span=0.007) == 0.1
+        return 16.0 if 0.0035 <= v < 0.0095 else 11.0
+
+    def near(value, expected):
+        return abs(value - expected) <= 0.00025 + 1e-12
+    assert near(profile(staircase, 0.1, 5.0, 10.0, 0.002, math.inf), 0.0295)
+    assert near(profile(staircase, 0.1, 5.0, 10.0, 0.002, 0.025), 0.0295)
+    assert profile(lambda v: 10.0, 0.1, 5.0, 10.0, 0.002, math.inf) == 0.1
+    assert near(profile(dip_far, 0.1, 5.0, 10.0, 0.002, math.inf), 0.0515)
+    assert near(profile(wide_spike, 0.1, 5.0, 10.0, 0.002, 0.003), 0.0035)
+    assert profile(wide_spike, 0.1, 5.0, 10.0, 0.002, 0.007) == 0.1
+    assert near(profile(lambda v: 20.0, 0.1, 5.0, 10.0, 0.002, math.inf), 0.00025)
+    with pytest.raises(ValueError, match="step > 0"):
+        profile(staircase, 0.1, 5.0, 10.0, 0.0, math.inf)
 
 
 @pytest.fixture(scope="module")
@@ -328,8 +339,8 @@ def test_the_interval_holds_a_class_the_readings_fit_as_well(can_as_box):
 
     def holds(bounds):
         return (bounds[0] <= truth.dims) & (truth.dims <= bounds[1])
-    assert not np.any(holds(slice_bounds(problem, as_box, 2.71, 0.1, 0.002)))
-    assert np.all(holds(intervals(problem, as_box, 2.71, 0.1, 0.002)))
+    assert not np.any(holds(slice_bounds(problem, as_box, 2.71, 0.1, 0.002, FOOTPRINT)))
+    assert np.all(holds(intervals(problem, as_box, 2.71, 0.1, 0.002, FOOTPRINT)))
 
 
 def test_the_interval_rises_from_the_lowest_cost_found(can_as_box):
@@ -347,15 +358,15 @@ def test_the_interval_rises_from_the_lowest_cost_found(can_as_box):
     assert sorted(o.cost for o in others)[1] > cylinder.cost + 2.71
     sides = 0.002 * np.array([2, 2, 1])
     dims = as_box.shape.box(0.0).dims
-    low, high = slice_bounds(problem, cylinder, 2.71, 0.1, 0.002)
-    lower, upper, chosen = intervals(problem, as_box, 2.71, 0.1, 0.002)
+    low, high = slice_bounds(problem, cylinder, 2.71, 0.1, 0.002, FOOTPRINT)
+    lower, upper, chosen = intervals(problem, as_box, 2.71, 0.1, 0.002, FOOTPRINT)
     np.testing.assert_array_equal(lower, np.minimum(low, dims - sides))
     np.testing.assert_array_equal(upper, np.maximum(high, dims + sides))
     # The fit's level would have let the cylinder rise by its excess too: wider.
     old_low, old_high = slice_bounds(problem, cylinder, as_box.cost + 2.71 - cylinder.cost,
-                                     0.1, 0.002)
+                                     0.1, 0.002, FOOTPRINT)
     assert np.any(old_high - old_low > high - low + 0.001)
     # Cheaper by more than the rounding's price: the criterion would choose the cylinder.
     assert problem.score(cylinder) < problem.score(as_box)
     assert not chosen
-    assert intervals(problem, cylinder, 2.71, 0.1, 0.002)[2]
+    assert intervals(problem, cylinder, 2.71, 0.1, 0.002, FOOTPRINT)[2]

@@ -231,10 +231,11 @@ class ShapeEstimator:
             fit = self._search(problem, starts, cold=True)
             misfit, flag, table_misfit, table_flag = self._misfits(problem, fit)
         rise = self.params.interval_level * max(1.0, misfit)
-        floor = self._pitch(problem) / 2 * math.sqrt(max(1.0, misfit))
+        pitch = self._pitch(problem)
+        floor = pitch / 2 * math.sqrt(max(1.0, misfit))
         # A zone's footprint at the same range: a side the cost keeps above the level over
         # it is bounded (`profile`).
-        footprint = self._pitch(problem) * self._model.subsamples
+        footprint = pitch * self._model.subsamples
         # The interval may take the search's refits of this fit, no other's, and no earlier
         # estimate's: a later read of one of those computes them again.
         problem.forget_reclassed(keep=fit)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses as dc
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -19,17 +20,20 @@ from lrnbv_drake.core.estimation.forward import NO_CLIP
 from lrnbv_drake.core.estimation.shape import TOP, Shape, moved, part_of_box
 
 
-def profile(cost, reach: float, rise: float, best: float, step: float,
-            span: float = math.inf) -> float:
+def profile(cost: Callable[[float], float], reach: float, rise: float, best: float,
+            step: float, span: float) -> float:
     """The farthest a move can go, at most `reach`, with `cost(move)` within `rise` of the
-    lowest cost met: scanned every `step` until the cost has stayed above that level for
-    more than `span` (or `reach` is met), then bisected to 0.5 mm past the farthest move
-    within. The objective is a staircase, not monotone in a move: a zone flipping as a side
-    crosses its sub-rays can rise above the level a step before the cost falls back, so the
-    first move that rises does not bound the side; a rise held over a zone's footprint
-    (`span`) does, as every zone the side was in has then been crossed whole. The level is
+    lowest cost met: scanned every `step` until the moves since the farthest one within
+    span more than `span` (or `reach` is met), then bisected between that move and the next
+    scanned to a 0.5 mm bracket, whose middle is returned. The objective is a staircase,
+    not monotone in a move: a zone flipping as a side crosses its sub-rays can rise above
+    the level a step before the cost falls back, so the first move that rises does not
+    bound the side; a rise held over about a zone's footprint (`span`) does. The level is
     the lowest cost met, not `best`, as a cost that falls before it rises bounds nothing."""
-    moves, costs = [], []
+    if not (step > 0 and span >= 0):
+        raise ValueError(f"profile needs step > 0 and span >= 0; got step {step}, span {span}")
+    moves: list[float] = []
+    costs: list[float] = []
     while True:
         moves.append(min(step * (len(moves) + 1), reach))
         costs.append(cost(moves[-1]))
@@ -71,7 +75,7 @@ def _extended(shape: Shape, direction: np.ndarray, support: float, value: float)
 
 
 def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: float,
-              span: float = math.inf) -> tuple[np.ndarray, np.ndarray, bool]:
+              span: float) -> tuple[np.ndarray, np.ndarray, bool]:
     """(lower, upper) of the box's length, width and height over the shapes whose cost lies
     within `rise` of the lowest found: the fit and each solid part re-classed (`classings`,
     searched within a centimetre), each shape's `slice_bounds` to the rise left above its
@@ -79,7 +83,7 @@ def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: floa
     The level is the lowest cost's, as a profile's is the best fit's: a class the criterion
     did not afford may explain the readings better than the fit, and the fit's cost would
     then let every shape rise by that difference too. The fit's box is always held (within
-    `floor` a side), even where such a class leaves it no rise."""
+    `floor` a side), even where such a class leaves it no rise. `span`: `slice_bounds`'."""
     shape = fit.shape
     others = [other for k in range(len(shape.solid)) if shape.solid[k]
               # A box part's own class is the fit: only a rounded part is tried as a box.
@@ -98,12 +102,13 @@ def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: floa
 
 
 def slice_bounds(problem: Problem, fit: Fit, rise: float, reach: float, floor: float,
-                 span: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
+                 span: float) -> tuple[np.ndarray, np.ndarray]:
     """(lower, upper) of the box's length, width and height: how far each of its sides can
     move in (every solid clipped by it) and out (the solids that reach it extended), the
-    rest held, with the cost within `rise` (`profile`: scanned every two floors, the
-    staircase's step, until the cost has stayed above the level for `span`), and at least
-    `floor`. Each move re-evaluates only the zones crossing the slab it can sweep."""
+    rest held, with the cost within `rise` (`profile`, scanned every two floors: the
+    sub-ray pitch, widened by the misfit as the floor is; `span` about a zone's footprint),
+    and at least `floor`. Each move re-evaluates only the zones crossing the slab it can
+    sweep."""
     shape = fit.shape
     box = shape.box(problem.table)
     c, s = math.cos(box.yaw), math.sin(box.yaw)
