@@ -25,8 +25,9 @@ from lrnbv_drake.station.scenario import recorded_scenario
 
 def finished_rows(folder: Path) -> list[dict]:
     """results.csv's rows of the episodes `folder` finished (`episodes/*.json`)."""
-    records = [json.loads(path.read_text()) for path in sorted(folder.glob("episodes/*.json"))]
-    return [episode_row(r) for r in records if "error" not in r]
+    rows = [episode_row(json.loads(path.read_text()))
+            for path in sorted(folder.glob("episodes/*.json"))]
+    return [row for row in rows if row["status"] == "ok"]
 
 
 def main() -> None:
