@@ -22,9 +22,9 @@ $(STAMP): pyproject.toml
 	@# setuptools warns on every editable install that a folder named like the package shadows it:
 	@# here that folder is the package itself, so the warning says nothing.
 	PYTHONWARNINGS='ignore:Editable installation' $(BIN)/python -m pip install --quiet -e '.[test]'
-	@# Compile the numba kernels of the shape estimate, the kinematics and look_at into their
-	@# on-disk cache now: cold, the first report of every process would wait about 5 s for them
-	@# (after a fault on the cell too), its first IK 5.5 s.
+	@# Compile the loop's numba kernels (the estimate, the map, the gains, the kinematics) into
+	@# their on-disk cache now, about 30 s, which an episode would otherwise spend before it
+	@# starts (it compiles what a cold cache lacks, core/kernels.py).
 	$(BIN)/python -m lrnbv_drake.core.kernels
 	touch $(STAMP)
 

@@ -99,3 +99,34 @@ def test_importing_the_package_chooses_the_folder_unless_one_is_chosen():
     kept = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           check=True, env=env | {"NUMBA_CACHE_DIR": "/tmp/mine"}).stdout.strip()
     assert kept == "/tmp/mine"
+
+
+#: The modules whose kernels an episode's loop runs: the map, the gains, the estimator and
+#: the arm's kinematics and collision balls.
+LOOP_KERNEL_MODULES = (
+    "lrnbv_drake.core.mapping.insert_kernels", "lrnbv_drake.core.mapping.query_kernels",
+    "lrnbv_drake.core.planning.utility", "lrnbv_drake.core.planning.box_gain",
+    "lrnbv_drake.core.estimation.forward", "lrnbv_drake.core.robot.kinematics",
+    "lrnbv_drake.core.robot.poses", "lrnbv_drake.core.robot.sure_collision")
+UNCOMPILED = textwrap.dedent("""\
+    import importlib, sys
+    from numba.core.registry import CPUDispatcher
+    from lrnbv_drake.core.kernels import compile_kernels
+    compile_kernels()
+    kernels = {f"{name}.{key}": value for name in sys.argv[1:]
+               for key, value in vars(importlib.import_module(name)).items()
+               if isinstance(value, CPUDispatcher) and value.__module__ == name}
+    called = {n for k in kernels.values() for n in k.py_func.__code__.co_names}
+    for name, kernel in kernels.items():
+        if name.rsplit(".", 1)[1] not in called and not kernel.signatures:
+            print(name)
+    """)
+
+
+def test_compile_kernels_compiles_every_kernel_of_the_loop():
+    # A fresh process, so that no other test has compiled a kernel for it: each kernel the
+    # loop's modules define that Python calls (a kernel another calls is compiled into its
+    # caller's cache entry, not its own) has a signature once compile_kernels has run.
+    out = subprocess.run([sys.executable, "-c", UNCOMPILED, *LOOP_KERNEL_MODULES],
+                         capture_output=True, text=True, check=True, timeout=600).stdout
+    assert out.split() == []

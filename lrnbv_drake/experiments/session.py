@@ -50,6 +50,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Context
 
 from lrnbv_drake.core.acquisition import Acquisition, EpisodeLog
+from lrnbv_drake.core.kernels import compile_kernels
 from lrnbv_drake.drivers.tof_serial import SerialStats
 from lrnbv_drake.experiments.episode import (
     PLANNERS,
@@ -294,6 +295,8 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
          confirm: Confirm, meshcat: Meshcat | None, dry_run: bool) -> SessionResult:
     if planner not in (*PLANNERS, COMMISSION):
         raise SessionError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
+    # Before anything connects: a cache an update left cold compiles for half a minute.
+    compile_kernels()
     if dry_run:
         scenario = override(scenario, {"hardware": {"robot_driver": "playback",
                                                     "sensor_driver": "simulated"}})

@@ -342,3 +342,17 @@ class OccupancyMap:
         live tree into its maximum-likelihood version).
         """
         octomap_io.export_octomap(self, path)
+
+
+def compile_kernels() -> None:
+    """Compiles the map's kernels into numba's on-disk cache by inserting one scan and asking
+    each query of it: cold, the first acquisition and planning iteration of every process
+    would wait for them (`python -m lrnbv_drake.core.kernels`)."""
+    occupancy = OccupancyMap(bounds=((-0.1, -0.1, 0.0), (0.1, 0.1, 0.2)))
+    origin, down = np.array([0.0, 0.0, 0.15]), np.array([[0.0, 0.0, -1.0]])
+    occupancy.insert_scan(origin, origin + 0.1 * down)
+    occupancy.counts()
+    occupancy.occupied_centers()
+    occupancy.known_cells()
+    occupancy.first_occupied(origin[None], down, 0.2)
+    occupancy.unknown_along_segments(origin[None], origin + 0.2 * down)

@@ -30,8 +30,8 @@ from numba.core import types
 from numba.extending import intrinsic
 from scipy import ndimage
 
-from lrnbv_drake.core.boxes import AlignedBox
-from lrnbv_drake.core.mapping import ray_box_interval, walk_start, walk_step
+from lrnbv_drake.core.boxes import AlignedBox, OrientedBox
+from lrnbv_drake.core.mapping import OccupancyMap, ray_box_interval, walk_start, walk_step
 from lrnbv_drake.core.planning.box_gain import SideBands, box_gains
 from lrnbv_drake.core.planning.config import GainParams, UtilityWeights
 from lrnbv_drake.core.sensing.sensor import ZoneGeometry
@@ -295,3 +295,18 @@ class UtilityFunction:
                 + w.quality * gains.quality / scale[2]
                 + w.visited * gains.visited
                 + w.box * gains.box / scale[3])
+
+
+def compile_kernels() -> None:
+    """Compiles the gains' kernels into numba's on-disk cache by scoring one view of a small
+    map, the box gain included: cold, the first planning iteration of every process would
+    wait for them (`python -m lrnbv_drake.core.kernels`)."""
+    occupancy = OccupancyMap(bounds=((-0.1, -0.1, 0.0), (0.1, 0.1, 0.2)))
+    box = OrientedBox(np.array([0.0, 0.0, 0.02]), np.full(3, 0.04), 0.0)
+    snapshot = make_snapshot(occupancy, AlignedBox(occupancy.bounds[0], occupancy.bounds[1]),
+                             box.center[None], box.center, GainParams().density_radius,
+                             SideBands.of(box, 0.9 * box.dims, 1.1 * box.dims, 0.0))
+    view = np.diag([1.0, -1.0, -1.0, 1.0])
+    view[2, 3] = 0.3
+    evaluate_gains(view[None], snapshot, sensor_rays(ZoneGeometry()), VisitedGrid(),
+                   GainParams())
