@@ -1,0 +1,70 @@
+"""How far the structure search's fit of a recorded flange episode is from the best the
+shape model can do on the same readings (record 0031).
+
+The paper flange (models/objects/generate_objects.py) is, in the shape model's terms, a
+plate (an upright cylinder 200 mm across, 20 mm high), a hub (an upright cylinder, here
+the 99.5 mm mean of its 110-88.9 mm taper, 50 mm high) and a bore (a cylindrical hole
+82.5 mm across), all on the object's centre. For each episode the estimate is refitted
+from its frames as the episode made it (`lrnbv refit`'s), then the fit and that structure,
+refined from the drawing by the estimator's own coordinate search, are scored on the same
+zones (every valid zone whose sub-rays pass within `estimation.margin` of the true box) by
+the estimator's information criterion: a structure that scores lower and whose box is
+nearer the truth is one the search did not find.
+
+    .venv/bin/python benchmarks/flange_search_gap.py out/results/paper/runs/lrnbv__flange__*
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from lrnbv_drake.core.estimation.fit import Problem
+from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
+from lrnbv_drake.core.estimation.shape import Shape, part_of_box
+from lrnbv_drake.experiments.refit import load_episode
+from lrnbv_drake.station.parts import episode_estimator, sensor_behaviour, sensor_params
+
+#: (diameter, height, solid) of the plate, the hub and the bore, metres.
+FLANGE = ((0.200, 0.020, True), (0.0995, 0.050, True), (0.0825, 2.0, False))
+
+
+def flange_shape(centre: np.ndarray) -> Shape:
+    """The flange's structure (`FLANGE`) standing on the table at `centre` (x, y)."""
+    parts = np.array([[*centre, 0.0, d, d, h, 1.0, 1.0, 0.0] for d, h, _ in FLANGE])
+    return Shape(parts, (True,) * len(FLANGE), tuple(s for *_, s in FLANGE))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folders", nargs="+", type=Path)
+    args = parser.parse_args()
+    for folder in args.folders:
+        episode = load_episode(folder)
+        scenario, true = episode.scenario, episode.true
+        fitted = episode_estimator(scenario).update(episode.readings, episode.cell_boxes,
+                                                    final=True).latest
+        model, p = sensor_params(scenario), scenario.estimation
+        table = scenario.cell.table_height
+        rays = ZoneRays.concatenate([zone_rays(f, X, model) for f, X in episode.readings],
+                                    model.subsamples ** 2)
+        near = part_of_box(true, table - p.margin)
+        near[3:6] += 2 * p.margin
+        rays = rays.take(rays.crossing(near, table - p.margin).any(axis=1))
+        problem = Problem(rays, table, np.asarray(scenario.cell.table_extent, float),
+                          ReadingRule.of(model, sensor_behaviour(scenario)), p.loss_scale,
+                          p.no_return, p.step)
+        fit = problem.evaluate(fitted.shape)
+        drawn = problem.refine(problem.evaluate(flange_shape(true.center[:2])), 0.006)
+        print(f"{folder.name}: {len(problem)} zones; the search's fit ({fitted.shape.name()}) "
+              f"criterion {problem.score(fit):.1f}, worst error "
+              f"{1000 * np.abs(fitted.box.dims - true.dims).max():.1f} mm; the drawing's "
+              f"structure refined {problem.score(drawn):.1f}, worst error "
+              f"{1000 * np.abs(drawn.shape.box(table).dims - true.dims).max():.1f} mm",
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()

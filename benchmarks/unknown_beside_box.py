@@ -1,0 +1,76 @@
+"""Whether the map's unknown space beside the reported box tells a confident stop on a wrong
+box from one on a right box (record 0031).
+
+For each recorded episode that ended on the box stop, the map is rebuilt from its frames
+(the map is a function of them) and the cells in a shell around the reported box, within
+`--shell` of its sides and from a cell above the table to a centimetre above its top, are
+classified: the share still unknown is what a stop asking "could a part hide beside the
+estimate?" would read. The summary compares the stops whose worst dimension is more than
+`--wrong-mm` off with the others (medians, and the probability that a wrong stop's share
+exceeds a right one's: 0.5 is no signal).
+
+    .venv/bin/python benchmarks/unknown_beside_box.py out/results/{family,paper}/runs/lrnbv__*
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import scipy.stats
+
+from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.experiments.refit import load_episode
+from lrnbv_drake.station.parts import map_system
+
+BOX_STOP = "the box held still"
+
+
+def unknown_share(folder: Path, shell: float) -> float:
+    """The share of unknown cells within `shell` of the reported box's sides."""
+    episode = load_episode(folder)
+    occupancy = map_system(episode.scenario, period=None)
+    occupancy.insert_recorded(occupancy.CreateDefaultContext(), episode.readings)
+    grid = occupancy.occupancy_map
+    entry = episode.reported
+    box = OrientedBox(np.array(entry["center"]), np.array(entry["dims"]), entry["yaw"])
+    table, step = episode.scenario.cell.table_height, grid.resolution / 2
+    half = box.dims[:2] / 2 + shell
+    x, y, z = np.meshgrid(np.arange(-half[0], half[0], step), np.arange(-half[1], half[1], step),
+                          np.arange(table + 1.2 * grid.resolution, table + box.dims[2] + 0.01,
+                                    step), indexing="ij")
+    local = np.c_[x.ravel(), y.ravel()]
+    outside = np.max(np.abs(local) - box.dims[:2] / 2, axis=1) > 0
+    c, s = np.cos(box.yaw), np.sin(box.yaw)
+    world = np.c_[local[outside] @ np.array([[c, s], [-s, c]]) + box.center[:2],
+                  z.ravel()[outside]]
+    return float(np.mean(grid.classify(world) == -1))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folders", nargs="+", type=Path)
+    parser.add_argument("--shell", type=float, default=0.02, help="metres beside the box")
+    parser.add_argument("--wrong-mm", type=float, default=10.0)
+    args = parser.parse_args()
+    wrong, right = [], []
+    for folder in args.folders:
+        report = json.loads((folder / "report.json").read_text())
+        if not report["termination"].startswith(BOX_STOP):
+            continue
+        worst = max(abs(v) for v in report["metrics"]["dim_errors_mm"])
+        share = unknown_share(folder, args.shell)
+        (wrong if worst > args.wrong_mm else right).append(share)
+        print(json.dumps({"folder": str(folder), "worst_mm": worst, "unknown": round(share, 3)}),
+              flush=True)
+    if wrong and right:
+        u = scipy.stats.mannwhitneyu(wrong, right).statistic / len(wrong) / len(right)
+        print(f"unknown within {1000 * args.shell:.0f} mm: wrong stops (> {args.wrong_mm:g} mm) "
+              f"median {np.median(wrong):.3f} (n {len(wrong)}), right {np.median(right):.3f} "
+              f"(n {len(right)}); P(wrong > right) = {u:.2f}")
+
+
+if __name__ == "__main__":
+    main()
