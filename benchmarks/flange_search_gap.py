@@ -9,7 +9,9 @@ from its frames as the episode made it (`lrnbv refit`'s), then the fit and that 
 refined from the drawing by the estimator's own coordinate search, are scored on the same
 zones (every valid zone whose sub-rays pass within `estimation.margin` of the true box) by
 the estimator's information criterion: a structure that scores lower and whose box is
-nearer the truth is one the search did not find.
+nearer the truth is one the search did not find. Beside them: the best of the search's
+class move on each part of the fit alone, and the fit with every part an upright cylinder at
+once, refined.
 
     .venv/bin/python benchmarks/flange_search_gap.py out/results/paper/runs/lrnbv__flange__*
 """
@@ -21,19 +23,20 @@ from pathlib import Path
 
 import numpy as np
 
-from lrnbv_drake.core.estimation.fit import Problem
+from lrnbv_drake.core.estimation.fit import Problem, classings
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.shape import Shape, part_of_box
 from lrnbv_drake.experiments.refit import load_episode
 from lrnbv_drake.station.parts import episode_estimator, sensor_behaviour, sensor_params
 
+UPRIGHT_CYLINDER = (1.0, 1.0, 0.0)
 #: (diameter, height, solid) of the plate, the hub and the bore, metres.
 FLANGE = ((0.200, 0.020, True), (0.0995, 0.050, True), (0.0825, 2.0, False))
 
 
 def flange_shape(centre: np.ndarray) -> Shape:
     """The flange's structure (`FLANGE`) standing on the table at `centre` (x, y)."""
-    parts = np.array([[*centre, 0.0, d, d, h, 1.0, 1.0, 0.0] for d, h, _ in FLANGE])
+    parts = np.array([[*centre, 0.0, d, d, h, *UPRIGHT_CYLINDER] for d, h, _ in FLANGE])
     return Shape(parts, (True,) * len(FLANGE), tuple(s for *_, s in FLANGE))
 
 
@@ -58,10 +61,19 @@ def main() -> None:
                           p.no_return, p.step)
         fit = problem.evaluate(fitted.shape)
         drawn = problem.refine(problem.evaluate(flange_shape(true.center[:2])), 0.006)
+        # The search's class move on each part alone, and every part made an upright
+        # cylinder of its footprint at once.
+        single = min(problem.score(f) for k in range(len(fit.shape.solid))
+                     for f in classings(problem, fit, k, 0.01))
+        round_all = fit.shape
+        for k, x in enumerate(fit.shape.parts):
+            round_all = round_all.with_part(k, np.r_[x[:6], UPRIGHT_CYLINDER], rounded=True)
+        round_all = problem.refine(problem.evaluate(round_all), 0.006)
         print(f"{folder.name}: {len(problem)} zones; the search's fit ({fitted.shape.name()}) "
               f"criterion {problem.score(fit):.1f}, worst error "
-              f"{1000 * np.abs(fitted.box.dims - true.dims).max():.1f} mm; the drawing's "
-              f"structure refined {problem.score(drawn):.1f}, worst error "
+              f"{1000 * np.abs(fitted.box.dims - true.dims).max():.1f} mm; its best single "
+              f"re-class {single:.1f}; every part round {problem.score(round_all):.1f}; the "
+              f"drawing's structure refined {problem.score(drawn):.1f}, worst error "
               f"{1000 * np.abs(drawn.shape.box(table).dims - true.dims).max():.1f} mm",
               flush=True)
 
