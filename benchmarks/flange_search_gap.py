@@ -7,11 +7,12 @@ the 99.5 mm mean of its 110-88.9 mm taper, 50 mm high) and a bore (a cylindrical
 82.5 mm across), all on the object's centre. For each episode the estimate is refitted
 from its frames as the episode made it (`lrnbv refit`'s), then the fit and that structure,
 refined from the drawing by the estimator's own coordinate search, are scored on the same
-zones (every valid zone whose sub-rays pass within `estimation.margin` of the true box) by
-the estimator's information criterion: a structure that scores lower and whose box is
-nearer the truth is one the search did not find. Beside them: the best of the search's
-class move on each part of the fit alone, and the fit with every part an upright cylinder at
-once, refined.
+zones (the estimator's problem around the true box: every valid zone whose sub-rays pass
+within `estimation.margin` of it, its parts kept within the region they span) by the
+estimator's information criterion: a structure that scores lower and whose box is nearer
+the truth is one the search did not find. Beside them: the best re-class of a part of the
+fit (the class move's re-class alone, without its cuts and last polish), and the fit with
+every part an upright cylinder at once, refined.
 
     .venv/bin/python benchmarks/flange_search_gap.py out/results/paper/runs/lrnbv__flange__*
 """
@@ -23,15 +24,16 @@ from pathlib import Path
 
 import numpy as np
 
-from lrnbv_drake.core.estimation.fit import Problem, classings
-from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
-from lrnbv_drake.core.estimation.shape import Shape, part_of_box
+from lrnbv_drake.core.estimation.estimator import ShapeEstimator
+from lrnbv_drake.core.estimation.fit import classings
+from lrnbv_drake.core.estimation.shape import HOLE_HEIGHT, ROUNDINGS, Shape
 from lrnbv_drake.experiments.refit import load_episode
-from lrnbv_drake.station.parts import episode_estimator, sensor_behaviour, sensor_params
+from lrnbv_drake.experiments.report import estimate_readings
+from lrnbv_drake.station.parts import sensor_behaviour, sensor_params
 
-UPRIGHT_CYLINDER = (1.0, 1.0, 0.0)
+UPRIGHT_CYLINDER = ROUNDINGS[0]
 #: (diameter, height, solid) of the plate, the hub and the bore, metres.
-FLANGE = ((0.200, 0.020, True), (0.0995, 0.050, True), (0.0825, 2.0, False))
+FLANGE = ((0.200, 0.020, True), (0.0995, 0.050, True), (0.0825, HOLE_HEIGHT, False))
 
 
 def flange_shape(centre: np.ndarray) -> Shape:
@@ -47,22 +49,19 @@ def main() -> None:
     for folder in args.folders:
         episode = load_episode(folder)
         scenario, true = episode.scenario, episode.true
-        fitted = episode_estimator(scenario).update(episode.readings, episode.cell_boxes,
-                                                    final=True).latest
-        model, p = sensor_params(scenario), scenario.estimation
+        fitted = estimate_readings(scenario, episode.readings, episode.cell_boxes).latest
         table = scenario.cell.table_height
-        rays = ZoneRays.concatenate([zone_rays(f, X, model) for f, X in episode.readings],
-                                    model.subsamples ** 2)
-        near = part_of_box(true, table - p.margin)
-        near[3:6] += 2 * p.margin
-        rays = rays.take(rays.crossing(near, table - p.margin).any(axis=1))
-        problem = Problem(rays, table, np.asarray(scenario.cell.table_extent, float),
-                          ReadingRule.of(model, sensor_behaviour(scenario)), p.loss_scale,
-                          p.no_return, p.step)
+        # The estimator's own problem around the true box: its zones and the region its
+        # parts must stay in.
+        estimator = ShapeEstimator(sensor_params(scenario), sensor_behaviour(scenario), table,
+                                   tuple(scenario.cell.table_extent), scenario.estimation)
+        for frame, X_WS in episode.readings:
+            estimator.add(frame, X_WS)
+        problem = estimator._problem([true])
         fit = problem.evaluate(fitted.shape)
         drawn = problem.refine(problem.evaluate(flange_shape(true.center[:2])), 0.006)
-        # The search's class move on each part alone, and every part made an upright
-        # cylinder of its footprint at once.
+        # The class move's re-class of each part of the fit alone, and every part made an
+        # upright cylinder of its footprint at once.
         single = min(problem.score(f) for k in range(len(fit.shape.solid))
                      for f in classings(problem, fit, k, 0.01))
         round_all = fit.shape

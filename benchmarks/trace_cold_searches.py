@@ -1,8 +1,9 @@
 """Pose by pose, where the estimator searched a recorded episode's readings cold and why
 (record 0032): after each pose, every search (warm or cold, the zones fitted, the structure
-it ended on) and the misfit after it (flagged or not, the zones beyond `fit.OUTLIER`
-sigmas), and the worst dimension's error against the truth. A diagnostic: it wraps the
-estimator's private search and misfit steps to see them.
+it ended on) and the misfit after it (flagged or not, the bare table's beside it: a cold
+search follows a flagged refit only where the table is not flagged; the zones beyond
+`fit.OUTLIER` sigmas), and the worst dimension's error against the truth. A diagnostic: it
+wraps the estimator's private search and misfit steps to see them.
 
     .venv/bin/python benchmarks/trace_cold_searches.py out/results/paper/runs/nbv__flange__3
 """
@@ -13,7 +14,7 @@ import argparse
 
 import numpy as np
 
-from lrnbv_drake.core.estimation.fit import OUTLIER
+from lrnbv_drake.core.estimation.fit import _outliers
 from lrnbv_drake.experiments.refit import load_episode
 from lrnbv_drake.station.parts import episode_estimator
 
@@ -35,11 +36,9 @@ def main() -> None:
 
     def traced_misfits(problem, fit):
         out = misfits(problem, fit)
-        r = problem.rays
-        outliers = int(np.sum(np.abs(r.measured - np.nan_to_num(fit.predicted, nan=np.inf))
-                              > OUTLIER * r.sigma))
-        steps.append(f"misfit {out[0]:.2f}{' flagged' if out[1] else ''}, "
-                     f"{outliers} outlier zones")
+        steps.append(f"misfit {out[0]:.2f}{' flagged' if out[1] else ''} (the table's "
+                     f"{out[2]:.2f}{' flagged' if out[3] else ''}), "
+                     f"{int(_outliers(problem, fit).sum())} outlier zones")
         return out
 
     estimator._search, estimator._misfits = traced_search, traced_misfits

@@ -7,7 +7,8 @@ For each recorded episode that ended on the box stop, the map is rebuilt from it
 classified: the share still unknown is what a stop asking "could a part hide beside the
 estimate?" would read. The summary compares the stops whose worst dimension is more than
 `--wrong-mm` off with the others (medians, and the probability that a wrong stop's share
-exceeds a right one's: 0.5 is no signal).
+exceeds a right one's: 0.5 is no signal). Simulated episodes only: their reports hold the
+truth.
 
     .venv/bin/python benchmarks/unknown_beside_box.py out/results/{family,paper}/runs/lrnbv__*
 """
@@ -22,9 +23,11 @@ import numpy as np
 import scipy.stats
 
 from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.planning.utility import UNKNOWN
 from lrnbv_drake.experiments.refit import load_episode
 from lrnbv_drake.station.parts import map_system
 
+#: How the box stop's reason begins (core/planning/stop.py, `BoxStop.update`).
 BOX_STOP = "the box held still"
 
 
@@ -37,16 +40,16 @@ def unknown_share(folder: Path, shell: float) -> float:
     entry = episode.reported
     box = OrientedBox(np.array(entry["center"]), np.array(entry["dims"]), entry["yaw"])
     table, step = episode.scenario.cell.table_height, grid.resolution / 2
-    half = box.dims[:2] / 2 + shell
+    around = OrientedBox(np.r_[box.center[:2], table], np.r_[box.dims[:2] + 2 * shell, 0.0],
+                         box.yaw)
+    half = around.dims[:2] / 2
     x, y, z = np.meshgrid(np.arange(-half[0], half[0], step), np.arange(-half[1], half[1], step),
                           np.arange(table + 1.2 * grid.resolution, table + box.dims[2] + 0.01,
                                     step), indexing="ij")
-    local = np.c_[x.ravel(), y.ravel()]
-    outside = np.max(np.abs(local) - box.dims[:2] / 2, axis=1) > 0
-    c, s = np.cos(box.yaw), np.sin(box.yaw)
-    world = np.c_[local[outside] @ np.array([[c, s], [-s, c]]) + box.center[:2],
-                  z.ravel()[outside]]
-    return float(np.mean(grid.classify(world) == -1))
+    points = np.c_[np.c_[x.ravel(), y.ravel()] @ around.rotation_xy().T + box.center[:2],
+                   z.ravel()]
+    beside = points[~box.contains(np.c_[points[:, :2], np.full(len(points), box.center[2])])]
+    return float(np.mean(grid.classify(beside) == UNKNOWN))
 
 
 def main() -> None:
@@ -58,14 +61,18 @@ def main() -> None:
     wrong, right = [], []
     for folder in args.folders:
         report = json.loads((folder / "report.json").read_text())
-        if not report["termination"].startswith(BOX_STOP):
-            continue
+        if (not report["termination"].startswith(BOX_STOP)
+                or not report.get("metrics", {}).get("dim_errors_mm")):
+            continue  # another stop, or no truth (the real cell)
         worst = max(abs(v) for v in report["metrics"]["dim_errors_mm"])
         share = unknown_share(folder, args.shell)
         (wrong if worst > args.wrong_mm else right).append(share)
         print(json.dumps({"folder": str(folder), "worst_mm": worst, "unknown": round(share, 3)}),
               flush=True)
-    if wrong and right:
+    if not (wrong and right):
+        print(f"{len(wrong)} wrong and {len(right)} right box stops among the folders: "
+              f"nothing to compare")
+    else:
         u = scipy.stats.mannwhitneyu(wrong, right).statistic / len(wrong) / len(right)
         print(f"unknown within {1000 * args.shell:.0f} mm: wrong stops (> {args.wrong_mm:g} mm) "
               f"median {np.median(wrong):.3f} (n {len(wrong)}), right {np.median(right):.3f} "

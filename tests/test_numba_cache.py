@@ -123,10 +123,11 @@ UNCOMPILED = textwrap.dedent("""\
     """)
 
 
-def test_compile_kernels_compiles_every_kernel_of_the_loop():
+def test_compile_kernels_gives_every_kernel_python_calls_in_the_loop_a_signature():
     # A fresh process, so that no other test has compiled a kernel for it: each kernel the
-    # loop's modules define that Python calls (a kernel another calls is compiled into its
-    # caller's cache entry, not its own) has a signature once compile_kernels has run.
+    # loop's modules define that Python calls has a compiled signature once compile_kernels
+    # has run. A kernel only other kernels call is left out: loading its callers from the
+    # cache does not load it.
     out = subprocess.run([sys.executable, "-c", UNCOMPILED, *LOOP_KERNEL_MODULES],
                          capture_output=True, text=True, check=True, timeout=600).stdout
     assert out.split() == []

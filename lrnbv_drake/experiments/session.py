@@ -295,13 +295,14 @@ def _run(scenario: Scenario, planner: str, out_dir: Path, recorded: list[Acquisi
          confirm: Confirm, meshcat: Meshcat | None, dry_run: bool) -> SessionResult:
     if planner not in (*PLANNERS, COMMISSION):
         raise SessionError(f"unknown planner '{planner}': expected one of {', '.join(PLANNERS)}")
-    # Before anything connects: a cache an update left cold compiles for half a minute.
-    compile_kernels()
     if dry_run:
         scenario = override(scenario, {"hardware": {"robot_driver": "playback",
                                                     "sensor_driver": "simulated"}})
     check_hardware_config(scenario)
     check_scenario_files(scenario, scenario.hardware.sensor_driver == "simulated")
+    # After the checks, before anything connects: a cache an update left cold compiles for
+    # half a minute.
+    compile_kernels()
     if scenario.robot.robot_ip:
         q_start = read_robot(scenario, must_be_ready=not dry_run)
     elif recorded:  # a dry run without a robot resumes at the last recorded pose
