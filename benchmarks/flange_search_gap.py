@@ -24,12 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from lrnbv_drake.core.estimation.estimator import ShapeEstimator
 from lrnbv_drake.core.estimation.fit import classings
 from lrnbv_drake.core.estimation.shape import HOLE_HEIGHT, ROUNDINGS, Shape
 from lrnbv_drake.experiments.refit import load_episode
-from lrnbv_drake.experiments.report import estimate_readings
-from lrnbv_drake.station.parts import sensor_behaviour, sensor_params
+from lrnbv_drake.station.parts import episode_estimator
 
 UPRIGHT_CYLINDER = ROUNDINGS[0]
 #: (diameter, height, solid) of the plate, the hub and the bore, metres.
@@ -49,15 +47,12 @@ def main() -> None:
     for folder in args.folders:
         episode = load_episode(folder)
         scenario, true = episode.scenario, episode.true
-        fitted = estimate_readings(scenario, episode.readings, episode.cell_boxes).latest
+        tracked = episode_estimator(scenario)
+        fitted = tracked.update(episode.readings, episode.cell_boxes, final=True).latest
         table = scenario.cell.table_height
-        # The estimator's own problem around the true box: its zones and the region its
+        # The same estimator's problem around the true box: its zones and the region its
         # parts must stay in.
-        estimator = ShapeEstimator(sensor_params(scenario), sensor_behaviour(scenario), table,
-                                   tuple(scenario.cell.table_extent), scenario.estimation)
-        for frame, X_WS in episode.readings:
-            estimator.add(frame, X_WS)
-        problem = estimator._problem([true])
+        problem = tracked._estimator._problem([true])
         fit = problem.evaluate(fitted.shape)
         drawn = problem.refine(problem.evaluate(flange_shape(true.center[:2])), 0.006)
         # The class move's re-class of each part of the fit alone, and every part made an

@@ -40,14 +40,12 @@ def unknown_share(folder: Path, shell: float) -> float:
     entry = episode.reported
     box = OrientedBox(np.array(entry["center"]), np.array(entry["dims"]), entry["yaw"])
     table, step = episode.scenario.cell.table_height, grid.resolution / 2
-    around = OrientedBox(np.r_[box.center[:2], table], np.r_[box.dims[:2] + 2 * shell, 0.0],
-                         box.yaw)
-    half = around.dims[:2] / 2
+    half = box.dims[:2] / 2 + shell
     x, y, z = np.meshgrid(np.arange(-half[0], half[0], step), np.arange(-half[1], half[1], step),
                           np.arange(table + 1.2 * grid.resolution, table + box.dims[2] + 0.01,
                                     step), indexing="ij")
-    points = np.c_[np.c_[x.ravel(), y.ravel()] @ around.rotation_xy().T + box.center[:2],
-                   z.ravel()]
+    xy = np.c_[x.ravel(), y.ravel()] @ box.rotation_xy().T + box.center[:2]
+    points = np.c_[xy, z.ravel()]
     beside = points[~box.contains(np.c_[points[:, :2], np.full(len(points), box.center[2])])]
     return float(np.mean(grid.classify(beside) == UNKNOWN))
 
