@@ -13,7 +13,6 @@ Record 0033.
 from __future__ import annotations
 
 import argparse
-import math
 
 import numpy as np
 import scipy.cluster.hierarchy
@@ -42,8 +41,7 @@ def holding(box, table: float, points: np.ndarray) -> np.ndarray:
     """(3,) the length, width and height about `box`'s centre and axes that hold `points`."""
     if len(points) == 0:
         return np.zeros(3)
-    c, s = math.cos(box.yaw), math.sin(box.yaw)
-    local = (points[:, :2] - box.center[:2]) @ np.array([[c, -s], [s, c]])
+    local = (points[:, :2] - box.center[:2]) @ box.rotation_xy()
     return np.r_[2 * np.abs(local).max(axis=0), points[:, 2].max() - table]
 
 
@@ -55,9 +53,7 @@ def main() -> None:
     for folder in args.folders:
         episode = load_episode(folder)
         tracked = episode_estimator(episode.scenario)
-        for i in range(len(episode.readings)):
-            track = tracked.update(episode.readings[:i + 1], episode.cell_boxes[:i + 1])
-        estimate = track.latest
+        estimate = tracked.update(episode.readings, episode.cell_boxes).latest
         if estimate is None or estimate.shape is None or episode.true is None:
             continue
         problem = tracked._estimator._last_problem
