@@ -213,6 +213,10 @@ class DeviceConfig:
     # Weigh each surface's signal by its reflectance (object.reflectance,
     # cell.table_reflectance); the model assumes every surface reflects alike.
     reflectance: bool | None = None
+    # Rms of a fixed range offset per zone, the same in every frame (real frames: 3 mm), mm,
+    # and the seed that draws them (one device unit).
+    zone_offset_mm: float | None = None
+    zone_offset_seed: int | None = None
     # Zone centre directions: "uniform", "st" (the shape of ST's table) or a CSV file of
     # resolution^2 rows "x_deg, y_deg", row-major.
     zone_directions: str | None = None

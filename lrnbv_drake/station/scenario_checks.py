@@ -129,6 +129,8 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("device.accuracy", _one_of(*ACCURACY_LAWS)),
     ("device.ambient_klux", _at_least(0)),
     ("device.reported_sigma_spread", _at_least(0)),
+    ("device.zone_offset_mm", _at_least(0)),
+    ("device.zone_offset_seed", _at_least(0)),
     ("device.integration_steps", _at_least(1)),
     ("sensor.mount.xyz_mm", _vector(3)),
     ("sensor.mount.rpy_deg", _vector(3)),
