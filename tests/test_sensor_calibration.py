@@ -24,10 +24,12 @@ from lrnbv_drake.core.calibration.mixed_zone import (
     fit_mixed_zone_rule,
 )
 from lrnbv_drake.core.calibration.sensor_model import (
+    MIN_PLANE_ZONES,
     fit_noise_model,
     fit_zone_directions,
     target_hits,
     target_raster,
+    zone_errors_mm,
     zone_noise,
 )
 from lrnbv_drake.core.sensing.sensor import (
@@ -105,6 +107,48 @@ def test_the_noise_fit_recovers_the_datasheet_law_and_its_centre_zones():
     assert fit.sigma0_mm == pytest.approx(truth_floor, rel=0.2)
     assert fit.k == pytest.approx(truth_k_centre, rel=0.2)
     assert truth_k_mean > 1.3 * truth_k_centre  # the two laws differ: each check can fail
+
+
+def _flat_noise(behaviour: DeviceBehaviour, params: SensorModelParams, board_mm: float,
+                tilt_mm: float = 0.0, frames: int = 50, seed: int = 0):
+    """`zone_noise` of `frames` frames of a flat board at `board_mm`, its depth rising by
+    `tilt_mm` a zone column (a tilted board, as the depth of one is across the zones)."""
+    column = np.arange(8)[None, :, None, None] - 3.5
+    depth = np.broadcast_to((board_mm + tilt_mm * column) / 1000, (8, 8, FINE, FINE))
+    distance, status = _record([depth] * frames, params, behaviour, seed)
+    return zone_noise({"distance_mm": distance, "status": status,
+                       "sigma_mm": np.zeros_like(distance)})
+
+
+def test_the_noise_law_counts_each_zone_s_fixed_offset_as_noise():
+    """A device as real frames show it (notes 9): 0.7 mm of spread from frame to frame and a
+    fixed offset of 3 mm rms per zone. The estimator sees one frame a pose, so its sigma is
+    their root sum of squares, 3.1 mm, which the fit recovers within 20 % over boards at
+    150-1000 mm (each frame's spread alone gives 0.7); without offsets, on a board tilted by
+    3 mm a zone, the plane takes the tilt and the fit is the spread's. The law is checked
+    at each board's distance."""
+    params = _device(sigma0_mm=0.7, k=0.0)
+    unit = DeviceBehaviour(accuracy="model", zone_offset_mm=3.0, zone_offset_seed=3)
+    boards = (150.0, 300.0, 600.0, 1000.0)
+    for behaviour, tilt, expected in ((unit, 0.0, math.hypot(0.7, 3.0)),
+                                      (dc.replace(unit, zone_offset_mm=0.0), 3.0, 0.7)):
+        noises = [_flat_noise(behaviour, params, d, tilt, seed=i) for i, d in enumerate(boards)]
+        distances = np.concatenate([np.full(n.std_mm.size, d)
+                                    for n, d in zip(noises, boards, strict=True)])
+        for errors, sigma in (([zone_errors_mm(n) for n in noises], expected),
+                              ([n.std_mm for n in noises], 0.7)):
+            fit = fit_noise_model(distances, np.concatenate(errors))
+            law = np.maximum(fit.sigma0_mm, fit.k * np.array(boards))
+            assert law == pytest.approx(np.full(len(boards), sigma), rel=0.2)
+
+
+def test_a_board_on_too_few_zones_to_tell_its_plane_is_refused():
+    noise = _flat_noise(DeviceBehaviour(accuracy="model"), _device(sigma0_mm=1.0, k=0.0), 300.0,
+                        frames=10)
+    few = dc.replace(noise, **{f.name: getattr(noise, f.name)[:MIN_PLANE_ZONES - 1]
+                              for f in dc.fields(noise)})
+    with pytest.raises(ValueError, match=f"at least {MIN_PLANE_ZONES} zones"):
+        zone_errors_mm(few)
 
 
 # --- Zone directions -------------------------------------------------------------------------

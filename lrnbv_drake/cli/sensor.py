@@ -26,6 +26,7 @@ from pathlib import Path
 
 from lrnbv_drake.cli.arg_types import spread_count
 from lrnbv_drake.core.calibration.mixed_zone import MixedZoneFit
+from lrnbv_drake.core.calibration.sensor_model import zone_errors_mm
 from lrnbv_drake.core.sensing.sensor import STATUS_NO_TARGET, ToFFrame
 from lrnbv_drake.drivers.tof_serial import SensorError, SerialStats
 from lrnbv_drake.experiments.sensor_recording import (
@@ -83,7 +84,8 @@ def _recording_line(r: RecordingNoise) -> str:
                  f", none within reach of {r.target_mm:.0f} mm")
     if n:
         line += (f"; distance {noise.mean_mm.mean():.0f} mm, std {noise.std_mm.mean():.2f} "
-                 f"mm, device sigma {noise.reported_sigma_mm.mean():.2f} mm")
+                 f"mm, with the fixed offsets {zone_errors_mm(noise).mean():.2f} mm, device "
+                 f"sigma {noise.reported_sigma_mm.mean():.2f} mm")
     return line
 
 

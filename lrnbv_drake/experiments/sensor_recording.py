@@ -34,6 +34,7 @@ from lrnbv_drake.core.calibration.sensor_model import (
     on_target,
     target_hits,
     target_raster,
+    zone_errors_mm,
     zone_noise,
 )
 from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame, ZoneGeometry
@@ -321,8 +322,9 @@ def _flat_parts(name: str, distance_mm: float | None
 
 def characterize(files: Sequence[str], distances_mm: Sequence[float] | None, min_frames: int,
                  on_recording: Callable[[RecordingNoise], object] | None = None) -> NoiseFit:
-    """Fits sigma = max(sigma0, k d) to flat-board recordings: one per distance, or holding
-    each frame's distance (`board_mm`); `on_recording` sees each distance's zones as read."""
+    """Fits sigma = max(sigma0, k d) to flat-board recordings (each zone's spread and the
+    zones' fixed offsets, `zone_errors_mm`): one per distance, or holding each frame's
+    distance (`board_mm`); `on_recording` sees each distance's zones as read."""
     if distances_mm is not None and len(distances_mm) != len(files):
         raise ValueError(f"--distance-mm takes one distance per --frames file: got "
                          f"{len(distances_mm)} for {len(files)} files")
@@ -338,7 +340,7 @@ def characterize(files: Sequence[str], distances_mm: Sequence[float] | None, min
                 on_recording(entry)
             used.append(entry)
     return fit_noise_model(np.concatenate([r.distances_mm for r in used]),
-                           np.concatenate([r.noise.std_mm for r in used]))
+                           np.concatenate([zone_errors_mm(r.noise) for r in used]))
 
 
 def characterize_directions(files: Sequence[str], geometry: ZoneGeometry) -> ZoneDirectionFit:

@@ -1,8 +1,8 @@
 """Calibrating the sensor model from recordings a user can make on the real cell
 (docs/sensor-calibration.md):
 
-- noise: per-zone spread over static recordings of a flat board at several distances, and the
-  fit of the model's sigma = max(sigma0, k d);
+- noise: per-zone spread over static recordings of a flat board at several distances and the
+  zones' fixed offsets from its plane, and the fit of the model's sigma = max(sigma0, k d);
 - zone directions: a small target stepped across the field of view, each zone's centre the
   middle of the directions at which it reports the target.
 
@@ -40,12 +40,14 @@ class ZoneNoise:
         std_mm: standard deviation over frames (ddof 1).
         reported_sigma_mm: mean of the device's own sigma estimate.
         frames: valid frames per zone.
+        grid: (n, 2) each zone's row and column in the recording's grid.
     """
 
     mean_mm: np.ndarray
     std_mm: np.ndarray
     reported_sigma_mm: np.ndarray
     frames: np.ndarray
+    grid: np.ndarray
 
 
 def zone_noise(recording: dict[str, np.ndarray], min_frames: int = 10,
@@ -67,7 +69,8 @@ def zone_noise(recording: dict[str, np.ndarray], min_frames: int = 10,
     mean = np.where(valid, d, 0.0).sum(axis=0) / count
     var = np.where(valid, (d - mean) ** 2, 0.0).sum(axis=0) / np.maximum(n - 1, 1)
     sigma = np.where(valid, recording["sigma_mm"], 0.0).sum(axis=0) / count
-    return ZoneNoise(mean[usable], np.sqrt(var[usable]), sigma[usable], n[usable])
+    return ZoneNoise(mean[usable], np.sqrt(var[usable]), sigma[usable], n[usable],
+                     np.argwhere(usable))
 
 
 def on_target(noise: ZoneNoise, target_mm: float) -> ZoneNoise:
@@ -75,6 +78,35 @@ def on_target(noise: ZoneNoise, target_mm: float) -> ZoneNoise:
     others see the floor or the surroundings, not the flat target."""
     keep = np.abs(noise.mean_mm - target_mm) <= max(50.0, 0.1 * target_mm)
     return ZoneNoise(*(getattr(noise, f.name)[keep] for f in dc.fields(noise)))
+
+
+#: Fewest zones on a flat board that tell its plane (three numbers) from their offsets.
+MIN_PLANE_ZONES = 6
+
+
+def zone_errors_mm(noise: ZoneNoise) -> np.ndarray:
+    """Each zone's error about a flat board: its spread over the frames and the zones' fixed
+    offsets, the rms of their means' residuals from the plane fitted to them (linear in the
+    zones' rows and columns, as a flat board's depth is for small tilts). A real device
+    carries a fixed offset per zone, 3 mm rms against 0.7 mm of spread at 0.3 m (notes 9);
+    the estimator sees one frame a pose, so to it the offset is noise as much as the spread
+    is. The plane's three numbers and the means' own spread are taken out of the residuals'
+    variance.
+
+    Raises:
+        ValueError: between one and `MIN_PLANE_ZONES` zones, which cannot tell the offsets
+            from the plane (none give none).
+    """
+    n = noise.mean_mm.size
+    if 0 < n < MIN_PLANE_ZONES:
+        raise ValueError(f"a flat-board recording needs at least {MIN_PLANE_ZONES} zones on "
+                         f"the board to tell their fixed offsets from its plane; got {n}")
+    if n == 0:
+        return np.zeros(0)
+    a = np.c_[noise.grid, np.ones(n)]
+    residual = noise.mean_mm - a @ np.linalg.lstsq(a, noise.mean_mm, rcond=None)[0]
+    offset_var = np.mean(residual ** 2) * n / (n - 3) - np.mean(noise.std_mm ** 2 / noise.frames)
+    return np.sqrt(noise.std_mm ** 2 + max(offset_var, 0.0))
 
 
 @dc.dataclass(frozen=True)
