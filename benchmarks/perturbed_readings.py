@@ -2,7 +2,8 @@
 `replay_stop_rules.py`: how far a small change of the readings moves the estimate on the same
 views. `--bias` adds one fixed range offset per zone, the same in every frame of every
 episode (the real frames' per-zone offsets, about 3 mm rms after a plane is removed:
-`../shared/notes/vl53l8cx-behaviour.md` section 9); `--noise` adds an independent normal
+`../shared/notes/vl53l8cx-behaviour.md` section 9; the simulated device's unit of that seed,
+`tof_device.zone_offsets_mm`); `--noise` adds an independent normal
 draw to every reading (the control: as large a change, not fixed). Invalid zones stay
 invalid; readings stay whole millimetres. Record 0033.
 
@@ -19,6 +20,8 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+
+from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour, zone_offsets_mm
 
 
 def perturbed(distance_mm: np.ndarray, offset_mm: np.ndarray) -> np.ndarray:
@@ -39,7 +42,8 @@ def main() -> None:
     parser.add_argument("folders", nargs="+", type=Path,
                         help="episode folders, <campaign>/runs/<episode>")
     args = parser.parse_args()
-    bias = np.random.default_rng(args.seed).normal(0.0, args.bias or 0.0, (8, 8))
+    bias = zone_offsets_mm(DeviceBehaviour(zone_offset_mm=args.bias or 0.0,
+                                           zone_offset_seed=args.seed), 8)
     for i, folder in enumerate(args.folders):
         target = args.out / folder.parent.parent.name / "runs" / folder.name
         shutil.copytree(folder, target, dirs_exist_ok=True)
