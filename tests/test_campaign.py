@@ -508,7 +508,7 @@ def test_object_sets(tmp_path):
     with pytest.raises(CampaignError, match="share a name"):
         resolve_objects(str(folder))
     for bad in ("nope", "flange,part.step", ","):
-        with pytest.raises(CampaignError, match="expected paper, family, all"):
+        with pytest.raises(CampaignError, match="expected paper, family, held_out, all"):
             resolve_objects(bad)
 
 

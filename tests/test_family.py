@@ -1,11 +1,16 @@
-"""The generated family of objects (core/evaluation/object_family.py) and a user's awkward
-meshes: sharp, thin and open ones run an episode, a flat one is refused naming the file."""
+"""The generated family of objects and the held-out shapes (core/evaluation/object_family.py)
+and a user's awkward meshes: sharp, thin and open ones run an episode, a flat one is refused
+naming the file."""
+
+import argparse
+import math
 
 import numpy as np
 import pytest
 import shapely
 import trimesh
 
+from lrnbv_drake.cli.benchmark import add_benchmark_command, config_from_args
 from lrnbv_drake.cli.main import main
 from lrnbv_drake.core.evaluation import object_family, objects
 from lrnbv_drake.experiments.campaign.plan import FAMILY_PLACEMENT, resolve_objects
@@ -22,7 +27,7 @@ def test_the_family_holds_thirty_shapes_of_every_class_from_4_to_35_cm():
     assert 0.04 <= min(sizes) <= 0.05 and 0.30 <= max(sizes) <= 0.35
 
 
-@pytest.mark.parametrize("name", list(object_family.FAMILY))
+@pytest.mark.parametrize("name", [*object_family.FAMILY, *object_family.HELD_OUT])
 def test_each_shape_is_a_closed_solid_resting_on_its_canonical_box(name):
     mesh = objects.load_object_mesh(name)
     assert mesh.is_watertight and mesh.volume > 0
@@ -50,6 +55,39 @@ def test_the_campaign_takes_the_family_by_name_and_places_it_over_the_table():
     rng = np.random.default_rng(0)
     x, y, yaw = FAMILY_PLACEMENT.sample(rng)
     assert 0.42 <= x <= 0.58 and -0.12 <= y <= 0.12 and -180 <= yaw <= 180
+
+
+#: A solid's volume over its bounding box's, worked out by hand: a cone on a regular 48-gon,
+#: a third of its base's area 24 r^2 sin(pi / 24) over its minimum-area box's, the square
+#: across its flats (2 r cos(pi / 48))^2 (pi / 12 on a circle); a pyramid 1 / 3, a wedge 1 / 2,
+#: a regular hexagonal prism (3 sqrt(3) / 2 r^2) / (2 r sqrt(3) r) = 3 / 4, a box 1.
+BOX_SHARE = {"cone": 2 * math.sin(math.pi / 24) / math.cos(math.pi / 48) ** 2,
+             "pyramid": 1 / 3, "wedge": 1 / 2, "hex_prism": 3 / 4, "box_tiny": 1.0}
+
+
+@pytest.mark.parametrize("name", list(BOX_SHARE))
+def test_a_held_out_shape_fills_the_share_of_its_box_its_solid_does(name):
+    mesh = objects.load_object_mesh(name)
+    assert mesh.volume / np.prod(mesh.extents) == pytest.approx(BOX_SHARE[name], rel=1e-6)
+
+
+def test_the_bucket_widens_from_its_base_to_its_top():
+    mesh = objects.load_object_mesh("bucket")
+    z = mesh.vertices[:, 2]
+    base, top = (np.ptp(mesh.vertices[np.isclose(z, level), 0])
+                 for level in (0.0, mesh.extents[2]))
+    assert 0.65 <= base / top <= 0.8 and top == pytest.approx(mesh.extents[0])
+
+
+def test_the_held_out_shapes_are_no_family_member_and_are_placed_as_the_family(tmp_path):
+    assert not set(object_family.HELD_OUT) & set(object_family.FAMILY)
+    assert [o.label for o in resolve_objects("held_out")] == list(object_family.HELD_OUT)
+    parser = argparse.ArgumentParser(prog="lrnbv")
+    add_benchmark_command(parser.add_subparsers(dest="command", required=True))
+    for spec, placement in (("held_out", FAMILY_PLACEMENT), ("paper", None)):
+        config = config_from_args(parser.parse_args(
+            ["benchmark", "--objects", spec, "--out", str(tmp_path / spec)]))
+        assert config.placement == placement
 
 
 def _fin(path):

@@ -76,8 +76,10 @@ def add_benchmark_command(subparsers: argparse._SubParsersAction) -> argparse.Ar
     parser.add_argument("--objects", default="paper",
                         help="paper (the four), family (the generated shapes, placed at "
                              "random over the table unless --random-placement says where), "
-                             "all (both), a folder of .obj/.stl/.ply meshes, or "
-                             "comma-separated built-in names or mesh files (default: paper)")
+                             "held_out (shapes measured, never developed against; placed as "
+                             "the family), all (paper and family), a folder of .obj/.stl/.ply "
+                             "meshes, or comma-separated built-in names or mesh files "
+                             "(default: paper)")
     parser.add_argument("--trials", type=positive_int, default=5,
                         help="trials per planner and object (default 5)")
     parser.add_argument("--out", required=True,
@@ -128,7 +130,7 @@ def config_from_args(args: argparse.Namespace) -> CampaignConfig:
                             f"--random-placement (without it every trial uses the scenario's "
                             f"placement)")
     placement = (PlacementRange(**dict(given.values())) if args.random_placement
-                 else FAMILY_PLACEMENT if args.objects == "family" else None)
+                 else FAMILY_PLACEMENT if args.objects in ("family", "held_out") else None)
     config = CampaignConfig(
         out_dir=Path(args.out), planners=tuple(args.planners), objects=found,
         trials=args.trials, scenario=scenario,

@@ -1,4 +1,5 @@
-"""`lrnbv objects`: the built-in objects, the paper's first, then the generated family."""
+"""`lrnbv objects`: the built-in objects, the paper's first, then the generated family, then
+the held-out shapes."""
 
 from __future__ import annotations
 
@@ -14,6 +15,6 @@ def add_objects_command(subparsers: argparse._SubParsersAction) -> None:
 
 def run_objects_command(args: argparse.Namespace) -> int:
     """Prints one line per built-in object; returns the exit code."""
-    for name in (*objects.PAPER_OBJECTS, *objects.FAMILY_OBJECTS):
+    for name in (*objects.PAPER_OBJECTS, *objects.FAMILY_OBJECTS, *objects.HELD_OUT_OBJECTS):
         print(f"{name:20s} {objects.describe(name)}")
     return 0

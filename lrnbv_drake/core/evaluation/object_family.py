@@ -1,5 +1,7 @@
 """The generated family of objects the estimator is developed and measured against: shapes
-nobody tuned it on, from flat cartons to mugs, rings, two parts with a gap and soft blobs.
+nobody tuned it on, from flat cartons to mugs, rings, two parts with a gap and soft blobs; and
+the held-out shapes, measured but never developed against: tapering solids (a cone, a
+pyramid, a bucket, a wedge), a hexagonal prism and a cube smaller than a zone's footprint.
 
 Each shape is built here from trimesh primitives and booleans (manifold3d), its sizes drawn
 from its own seeded generator within its class's ranges, so the family is the same on every
@@ -225,6 +227,46 @@ def _blob(parts: tuple[int, int], size: tuple[float, float]):
     return build
 
 
+def _hull(*rings: np.ndarray) -> trimesh.Trimesh:
+    """The convex hull of (n, 3) rings of points: a prism, a frustum or a wedge."""
+    return trimesh.convex.convex_hull(np.concatenate(rings))
+
+
+def _polygon(radius: float, sides: int, z: float) -> np.ndarray:
+    """(sides, 3) a regular polygon of circumradius `radius` at height z."""
+    angles = 2 * np.pi * np.arange(sides) / sides
+    return np.column_stack([radius * np.cos(angles), radius * np.sin(angles),
+                            np.full(sides, z)])
+
+
+def _cone(rng: np.random.Generator) -> trimesh.Trimesh:
+    return trimesh.creation.cone(radius=_u(rng, 0.05, 0.07), height=_u(rng, 0.12, 0.18),
+                                 sections=_SEGMENTS)
+
+
+def _pyramid(rng: np.random.Generator) -> trimesh.Trimesh:
+    side, height = _u(rng, 0.12, 0.18), _u(rng, 0.08, 0.14)
+    return _hull(_polygon(side / math.sqrt(2), 4, 0.0), np.array([[0.0, 0.0, height]]))
+
+
+def _bucket(rng: np.random.Generator) -> trimesh.Trimesh:
+    top, height = _u(rng, 0.06, 0.08), _u(rng, 0.12, 0.16)
+    return _hull(_polygon(top * _u(rng, 0.65, 0.8), _SEGMENTS, 0.0),
+                 _polygon(top, _SEGMENTS, height))
+
+
+def _wedge(rng: np.random.Generator) -> trimesh.Trimesh:
+    length, width, height = _u(rng, 0.15, 0.22), _u(rng, 0.08, 0.12), _u(rng, 0.06, 0.10)
+    base = np.array([[x, y, 0.0] for x in (-length / 2, length / 2)
+                     for y in (-width / 2, width / 2)])
+    return _hull(base, np.array([[length / 2, y, height] for y in (-width / 2, width / 2)]))
+
+
+def _hex_prism(rng: np.random.Generator) -> trimesh.Trimesh:
+    radius, height = _u(rng, 0.04, 0.06) / math.cos(math.pi / 6), _u(rng, 0.04, 0.08)
+    return _hull(_polygon(radius, 6, 0.0), _polygon(radius, 6, height))
+
+
 def _flattened(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     mesh.apply_scale((1.0, 1.0, 0.35))
     return mesh
@@ -246,11 +288,15 @@ def _plush(rng: np.random.Generator) -> trimesh.Trimesh:
 #: The family by name, in class order. Every shape has its own seed, so adding one changes
 #: no other.
 FAMILY: dict[str, FamilyShape] = {}
+#: The held-out shapes by name: measured (`--objects held_out`), never developed against.
+HELD_OUT: dict[str, FamilyShape] = {}
 
 
 def _add(name: str, kind: str, description: str,
-         build: Callable[[np.random.Generator], trimesh.Trimesh]) -> None:
-    FAMILY[name] = FamilyShape(kind, description, build, seed=len(FAMILY) + 1000)
+         build: Callable[[np.random.Generator], trimesh.Trimesh],
+         into: dict[str, FamilyShape] = FAMILY) -> None:
+    into[name] = FamilyShape(kind, description, build,
+                             seed=len(into) + (2000 if into is HELD_OUT else 1000))
 
 
 _add("box_flat", "box", "a flat carton lying, 22-30 x 15-22 x 3-5 cm",
@@ -302,6 +348,18 @@ _add("blob_flat", "blob", "a flat union of random ellipsoids, about 20 cm",
      lambda rng: _flattened(_blob((3, 5), (0.28, 0.34))(rng)))
 _add("plush", "blob", "a seated plush toy, 14-22 cm tall", _plush)
 
+_add("cone", "taper", "a cone standing, 10-14 cm across, 12-18 cm tall", _cone, HELD_OUT)
+_add("pyramid", "taper", "a square pyramid, 12-18 cm at the base, 8-14 cm tall", _pyramid,
+     HELD_OUT)
+_add("bucket", "taper", "a bucket, 12-16 cm across the top, 65-80 % of it at the base, "
+     "12-16 cm tall", _bucket, HELD_OUT)
+_add("wedge", "taper", "a wedge, 15-22 x 8-12 cm, rising to 6-10 cm at its back", _wedge,
+     HELD_OUT)
+_add("hex_prism", "prism", "a hexagonal prism standing, 8-12 cm across flats, 4-8 cm tall",
+     _hex_prism, HELD_OUT)
+_add("box_tiny", "box", "a cube of 2.5-3.5 cm, smaller than a zone's footprint",
+     _boxes((0.025, 0.025, 0.025), (0.035, 0.035, 0.035)), HELD_OUT)
+
 
 def canonical(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """`mesh` turned about z so that its axis-aligned box is its minimum-area box (the longer
@@ -319,18 +377,24 @@ def canonical(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return out
 
 
+def generated(name: str) -> FamilyShape | None:
+    """The family's or the held-out shapes' member `name`, or None."""
+    return FAMILY.get(name) or HELD_OUT.get(name)
+
+
 @functools.cache
 def _built(name: str) -> trimesh.Trimesh:
-    shape = FAMILY[name]
+    shape = generated(name)
     return canonical(shape.build(np.random.default_rng(shape.seed)))
 
 
 def family_mesh(name: str) -> trimesh.Trimesh:
-    """A copy of the family's shape `name`, in metres, resting on z = 0 (see the module doc).
+    """A copy of the family's or the held-out shapes' `name`, in metres, resting on z = 0
+    (see the module doc).
 
     Raises:
-        KeyError: `name` is not in the family.
+        KeyError: `name` is in neither.
     """
-    if name not in FAMILY:
+    if generated(name) is None:
         raise KeyError(name)
     return _built(name).copy()

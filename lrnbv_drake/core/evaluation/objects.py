@@ -60,19 +60,22 @@ BUILTIN_OBJECTS: dict[str, BuiltinObject] = {
 PAPER_OBJECTS: tuple[str, ...] = ("horizontal_box", "vertical_box", "gripper", "flange")
 #: The generated family (`object_family`): shapes nobody tuned the estimator on.
 FAMILY_OBJECTS: tuple[str, ...] = tuple(object_family.FAMILY)
+#: The held-out shapes (`object_family`): measured, never developed against.
+HELD_OUT_OBJECTS: tuple[str, ...] = tuple(object_family.HELD_OUT)
 
 
 def is_builtin(name: str) -> bool:
-    """Whether `name` is a shipped mesh or a member of the generated family."""
-    return name in BUILTIN_OBJECTS or name in object_family.FAMILY
+    """Whether `name` is a shipped mesh, a member of the generated family or held out."""
+    return name in BUILTIN_OBJECTS or object_family.generated(name) is not None
 
 
 def describe(name: str) -> str:
     """What a built-in object is, in a line."""
     if name in BUILTIN_OBJECTS:
         return BUILTIN_OBJECTS[name].description
-    shape = object_family.FAMILY[name]
-    return f"{shape.kind}: {shape.description}"
+    shape = object_family.generated(name)
+    held_out = "held out, " if name in object_family.HELD_OUT else ""
+    return f"{held_out}{shape.kind}: {shape.description}"
 
 
 def _expected_input() -> str:
@@ -96,7 +99,7 @@ def load_object_mesh(name_or_path: str | os.PathLike[str], scale: float = 1.0) -
         factor = math.nan
     if not (math.isfinite(factor) and factor > 0):
         raise ValueError(f"scale for '{label}' must be a positive finite number; got {scale!r}")
-    if label in object_family.FAMILY:
+    if object_family.generated(label) is not None:
         mesh = object_family.family_mesh(label)
         if factor != 1.0:
             mesh.apply_scale(factor)

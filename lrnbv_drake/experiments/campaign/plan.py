@@ -53,8 +53,9 @@ class PlacementRange:
         return tuple(float(rng.uniform(lo, hi)) for lo, hi in (self.x, self.y, self.yaw_deg))
 
 
-#: Where `--objects family` places its shapes by default: the part of the table the arm
-#: views from every side (an object there keeps most of HEU's 13 poses reachable).
+#: Where `--objects family` (and `held_out`) places its shapes by default: the part of the
+#: table the arm views from every side (an object there keeps most of HEU's 13 poses
+#: reachable).
 FAMILY_PLACEMENT = PlacementRange(x=(0.42, 0.58), y=(-0.12, 0.12))
 
 
@@ -140,14 +141,16 @@ def plan_episodes(config: CampaignConfig) -> list[Episode]:
 
 
 def resolve_objects(spec: str) -> tuple[CampaignObject, ...]:
-    """`paper`, `family`, `all`, a folder of meshes, or comma-separated built-in names / mesh
-    files."""
-    expected = ("expected paper, family, all, a folder of .obj/.stl/.ply meshes, or "
+    """`paper`, `family`, `held_out`, `all` (the paper's and the family), a folder of meshes,
+    or comma-separated built-in names / mesh files."""
+    expected = ("expected paper, family, held_out, all, a folder of .obj/.stl/.ply meshes, or "
                 "comma-separated built-in objects (`lrnbv objects`) or mesh files")
     if spec == "paper":
         return tuple(CampaignObject(n, n) for n in objects.PAPER_OBJECTS)
     if spec == "family":
         return tuple(CampaignObject(n, n) for n in objects.FAMILY_OBJECTS)
+    if spec == "held_out":
+        return tuple(CampaignObject(n, n) for n in objects.HELD_OUT_OBJECTS)
     if spec == "all":
         return tuple(CampaignObject(n, n) for n in (*objects.PAPER_OBJECTS,
                                                     *objects.FAMILY_OBJECTS))
