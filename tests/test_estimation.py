@@ -188,6 +188,37 @@ def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads()
             np.testing.assert_allclose(alone[others], fit.costs[others], rtol=1e-12, atol=1e-12)
 
 
+def test_a_search_counts_its_casts_and_stops_at_its_budget():
+    """A grid's casts are its moving sub-rays x candidates x parts; once a problem's casts
+    reach its budget, no grid is evaluated and a refine keeps the shape it was given, while
+    without a budget the same refine moves a box started 2 cm wide of the truth."""
+    frames, truth, model = render("{object: {name: horizontal_box}}")
+    scenario = load_scenario(data="{object: {name: horizontal_box}}")
+    rays = ZoneRays.concatenate([zone_rays(f, X, model) for f, X in frames], 64)
+
+    def problem(budget):
+        return Problem(rays, 0.0, np.array(scenario.cell.table_extent),
+                       ReadingRule.of(model, sensor_behaviour(scenario)), 2.0, 5.0, 0.0005,
+                       budget=budget)
+    wide = OrientedBox(truth.center, truth.dims + np.array([0.02, 0.02, 0.0]), truth.yaw)
+    start = box_shape(wide, 0.0)
+    dut = problem(math.inf)
+    fit = dut.evaluate(start)
+    grid = 0.004 * np.arange(-3, 4)
+    xs = np.array([moved(start.parts[0], 1, g) for g in grid])
+    near = np.arange(len(dut))
+    moving = dut._moving(fit, 0, 1, grid[0], grid[-1], near)
+    zones, _ = dut.trials(fit, 0, 1, xs, grid[0], grid[-1], near)
+    assert len(zones) > 0 and dut.casts == int(moving.sum()) * len(xs) * 1
+    refined = dut.refine(fit, 0.02)
+    assert refined.cost < fit.cost and np.any(refined.shape.parts != start.parts)
+    spent = problem(1.0)
+    spent.casts = 1
+    assert spent.trials(fit, 0, 1, xs, grid[0], grid[-1], near)[0].size == 0
+    kept = spent.refine(spent.evaluate(start), 0.02)
+    assert np.array_equal(kept.shape.parts, start.parts) and kept.cost == fit.cost
+
+
 def test_the_estimate_does_not_depend_on_which_unchanged_zones_the_search_sums(monkeypatch):
     """A dumbbell's rendered views estimated twice: the line search re-casting only the
     sub-rays its grid can change, and re-casting every sub-ray of the zones near the part.

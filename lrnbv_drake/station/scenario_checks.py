@@ -163,6 +163,7 @@ RULES: tuple[Rule, ...] = tuple((path, *test) for path, test in (
     ("estimation.step", _above(0)),
     ("estimation.interval_level", _above(0)),
     ("estimation.interval_reach", _above(0)),
+    ("estimation.search_casts", _above(0)),
     ("planner.num_iterations", _at_least(1)),
     ("heu.n_poses", _at_least(1)),
     ("heu.semi_axis_x", _above(0)),

@@ -156,7 +156,8 @@ class ShapeEstimator:
                                        x[3:6], x[2]).corners())
         corners = np.concatenate(corners)
         return Problem(rays.take(keep), self._table, self._extent, self._rule, p.loss_scale,
-                       p.no_return, p.step, (corners.min(axis=0), corners.max(axis=0)))
+                       p.no_return, p.step, (corners.min(axis=0), corners.max(axis=0)),
+                       p.search_casts)
 
     def _pitch(self, problem: Problem) -> float:
         """The sub-rays' spacing at the fitted zones' median range: the objective is a
@@ -244,6 +245,7 @@ class ShapeEstimator:
         self._last_problem = problem
 
         def interval() -> tuple[np.ndarray, np.ndarray, bool]:
+            problem.casts = 0  # the interval's own budget
             bounds = intervals(problem, fit, rise, self.params.interval_reach, floor,
                                footprint)
             problem.forget_reclassed()

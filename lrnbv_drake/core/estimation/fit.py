@@ -73,8 +73,13 @@ class Problem:
 
     def __init__(self, rays: ZoneRays, table: float, extent: np.ndarray, rule: ReadingRule,
                  loss_scale: float, no_return: float, step: float,
-                 region: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 region: tuple[np.ndarray, np.ndarray] | None = None,
+                 budget: float = math.inf) -> None:
         self.rays, self.table, self.rule = rays, table, rule
+        # The search's work: the sub-ray casts of its candidate grids (`trials`, most of its
+        # time), and how many it may make before every further grid is skipped (a search
+        # past it keeps the best shape it has).
+        self.casts, self.budget = 0, budget
         self.loss = (loss_scale, no_return)
         self.step = step
         # (lower, upper) world corners the solid parts must stay within: the zones were
@@ -161,12 +166,15 @@ class Problem:
                near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(zones, losses): the zones (of `near`) a grid `xs` of part k's coordinate can
         change and their losses (len(xs), len(zones)) at each candidate."""
+        if self.casts >= self.budget:
+            return near[:0], np.zeros((len(xs), 0))
         moving = self._moving(fit, k, coordinate, lo, hi, near)
         rows = np.flatnonzero(moving.any(axis=1))
         zones = near[rows]
         starts = np.r_[0, np.cumsum(moving[rows].sum(axis=1))]
         subrays = np.nonzero(moving[rows])[1]
         r, s = self.rays, fit.shape
+        self.casts += len(subrays) * len(xs) * len(s.solid)
         return zones, forward.grid_costs(
             r.origins, r.directions, r.measured, r.sigma, zones, starts, subrays, s.parts,
             np.array(s.solid), k, xs, fit.depths, self.base, self.table, *self.rule.args(),

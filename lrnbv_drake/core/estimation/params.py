@@ -27,3 +27,7 @@ class EstimationParams:
     interval_level: float = 2.71
     # Farthest an interval reaches beyond the estimate on a side no reading bounds.
     interval_reach: float = 0.1
+    # Sub-ray casts a search (and, apart, an interval) may make before it keeps the best
+    # shape it has (`fit.Problem`): about 25 s on one core, so that a shape the model
+    # cannot draw does not hold the cell for minutes a pose.
+    search_casts: float = 5e8

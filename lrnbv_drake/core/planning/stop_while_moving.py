@@ -37,8 +37,9 @@ from lrnbv_drake.core.planning.stop import BoxStop
 from lrnbv_drake.core.sensing.sensor import ToFFrame
 
 #: Seconds a threaded check may take per reading it folds in before the loop gives up on it
-#: as a fault (an estimate takes well under one on the campaigns' objects, 5-15 on the
-#: slowest; a resumed session's first check folds in every reading before it).
+#: as a fault (an estimate takes well under one on the campaigns' objects, 5-30 on the
+#: slowest, whose searches stop at `estimation.search_casts`; a resumed session's first
+#: check folds in every reading before it).
 CHECK_TIMEOUT = 120.0
 #: Cores a threaded check's parallel kernels leave to the loop's thread: with none, the servo
 #: stream's ticks came up to twice as late (benchmarks/bench_servo_beside_estimate.py).
