@@ -40,6 +40,8 @@ def test_the_defaults_and_the_examples_pass():
     ("{mapping: {resolution: .nan}}", "field 'mapping.resolution': expected a number > 0"),
     ("{estimation: {interval_level: 0}}",
      "field 'estimation.interval_level': expected a number > 0, got 0"),
+    ("{estimation: {search_casts: -1}}",
+     "field 'estimation.search_casts': expected a number > 0, got -1"),
     ("{heu: {semi_axis_y: 0}}", "field 'heu.semi_axis_y': expected a number > 0, got 0"),
     ("{planner: {stop: {rule: early}}}",
      "field 'planner.stop.rule': expected one of 'paper', 'box', got 'early'"),
