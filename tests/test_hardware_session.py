@@ -262,12 +262,13 @@ def _when_moving_to_the_second_pose(out, q_first_pose, act):
     return hook
 
 
-def test_a_lost_link_ends_the_run_in_bounded_time_without_blocking_calls(
+def test_a_lost_link_ends_the_run_without_blocking_calls(
         scenario, q_first_pose, tmp_path, monkeypatch):
     """The link goes silent mid-motion: stale getters, isConnected still true, servoJ still
-    "accepted", stops that would block. The clock's silence ends the run and shutting down
-    (the drivers closed) takes under 3 s (the issue's bound), with everything captured on
-    disk."""
+    "accepted", stops that would block. The clock's silence ends the run: no blocking stop is
+    called and the drivers are closed before the outputs are written, with everything captured
+    on disk. The 3 s bound on that shutdown is asserted against the controller emulator, which
+    measures the machine's starvation (tests/test_hardware_faults.py)."""
     arm = fake_rtde.FakeArm(q_first_pose)
     arm.on_servo = hook = _when_moving_to_the_second_pose(tmp_path, q_first_pose,
                                                           fake_rtde.FakeArm.drop_link)
@@ -279,15 +280,12 @@ def test_a_lost_link_ends_the_run_in_bounded_time_without_blocking_calls(
     monkeypatch.setattr(session, "write_outputs",
                         lambda *args: written.append(time.monotonic()) or write(*args))
     result = run_session(scenario, "heu", tmp_path, confirm=lambda text: True)
-    ended = time.monotonic()
     assert hook.at is not None and result.fault == "disconnected" and result.moved
     assert "no new RTDE data" in result.termination and "watchdog" in result.termination
     dropped = [c for c in arm.calls if c.wall_time >= hook.at]
     assert not {"servoStop", "stopScript"} & {c.name for c in dropped}
     last_servo = max(c.wall_time for c in dropped if c.name == "servoJ")
-    assert closed[-1] - last_servo < 3.0  # shutdown after the loss was detected
-    assert closed[-1] < written[0]  # which waited for no report
-    assert ended - hook.at < 5.0  # the whole run after the fault
+    assert last_servo < closed[-1] < written[0]  # the stream ended, then closed, then the report
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["fault"] == "disconnected" and report["n_poses"] == 1 == _journal_lines(tmp_path)
 
