@@ -7,6 +7,7 @@ import math
 import numba
 import numpy as np
 import pytest
+import trimesh
 from rendered_views import NOISE_FREE, render, start_near
 from scipy.spatial.transform import Rotation
 
@@ -49,7 +50,8 @@ def test_a_tube_shows_its_wall_and_the_table_through_its_hole():
     """A cylinder of radius 5 cm, 10 cm tall, minus a hole of radius 3 cm: a vertical ray
     from 50 cm up meets the top at 40 cm over the wall and the table at 50 cm in the hole,
     and the table at 50 cm beside it."""
-    parts = np.array([[0, 0, 0, 0.10, 0.10, 0.10, 1, 1, 0], [0, 0, 0, 0.06, 0.06, 2.0, 1, 1, 0]])
+    parts = np.array([[0, 0, 0, 0.10, 0.10, 0.10, 1, 1, 0, 0],
+                      [0, 0, 0, 0.06, 0.06, 2.0, 1, 1, 0, 0]])
     down = [[0, 0, -1.0]]
     for x, expected in ((0.04, 0.40), (0.0, 0.50), (0.02, 0.50), (0.07, 0.50)):
         rays = _rays([x, 0, 0.5], down)
@@ -62,7 +64,7 @@ def test_a_tube_shows_its_wall_and_the_table_through_its_hole():
 def test_a_sphere_is_met_where_the_quadric_says():
     """A ball of radius 5 cm on the table (a box part rounded (1, 1, 1)): a vertical ray at
     3 cm from its axis meets it at z = 5 + 4 cm, 41 cm below a sensor at 50 cm."""
-    parts = np.array([[0, 0, 0, 0.1, 0.1, 0.1, 1, 1, 1]])
+    parts = np.array([[0, 0, 0, 0.1, 0.1, 0.1, 1, 1, 1, 0]])
     rays = _rays([0.03, 0, 0.5], [[0, 0, -1.0]])
     base = forward.table_depths(rays.origins, rays.directions, 0.0, EXTENT)
     depth = forward.shape_depths(rays.origins, rays.directions, rays.planes, parts,
@@ -70,10 +72,45 @@ def test_a_sphere_is_met_where_the_quadric_says():
     assert depth[0, 0] == pytest.approx(0.5 - 0.09)
 
 
+@pytest.mark.parametrize(("rounding", "taper"), [
+    ((0, 0, 0), 0.5), ((0, 0, 0), -0.4), ((1, 1, 0), 1.0), ((1, 1, 0), -0.3)])
+def test_a_tapered_part_is_met_where_its_mesh_is(rounding, taper):
+    """A pyramid's frustum or a cone's (a 512-gon), narrowing or widening upward, as a mesh
+    cast by trimesh: every ray from above that meets one meets the other at the same depth
+    (within the 512-gon's chord), bar a few grazing its edge."""
+    length, width, height, yaw = 0.12, 0.08, 0.10, 0.4
+    x = np.array([0.5, 0.1, yaw, length, width, height, *rounding, taper])
+    scale = (1.0 - max(-taper, 0.0), 1.0 - max(taper, 0.0))  # base, top
+    t = np.linspace(0, 2 * np.pi, 512, endpoint=False)
+    section = (np.c_[np.cos(t), np.sin(t)] if rounding[0] else
+               np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]))
+    section = section * [length / 2, width / 2]
+    corners = np.r_[np.c_[section * scale[0], np.zeros(len(section))],
+                    np.c_[section * scale[1], np.full(len(section), height)]]
+    corners[:, :2] = corners[:, :2] @ np.array([[math.cos(yaw), math.sin(yaw)],
+                                                [-math.sin(yaw), math.cos(yaw)]]) + x[:2]
+    mesh = trimesh.convex.convex_hull(corners)
+    rng = np.random.default_rng(5)
+    origins = np.c_[rng.uniform([0.3, -0.1], [0.7, 0.3], (2000, 2)), np.full(2000, 0.4)]
+    targets = np.c_[rng.uniform([0.42, 0.02, 0.0], [0.58, 0.18, 0.1], (2000, 3))]
+    directions = (targets - origins) / (0.4 - targets[:, 2:3])  # t: the depth below
+    rays = ZoneRays(origins, directions[:, None], np.zeros(2000), np.ones(2000))
+    base = np.full((2000, 1), np.inf)
+    depth = forward.shape_depths(rays.origins, rays.directions, rays.planes, x[None],
+                                 np.array([True]), base, 0.0, forward.NO_CLIP)[:, 0]
+    hits, index, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=True)
+    truth = np.full(2000, np.inf)
+    np.minimum.at(truth, index, np.einsum("ij,ij->i", hits - origins[index],
+                                          directions[index]) / np.sum(directions[index] ** 2, 1))
+    both = np.isfinite(depth) & np.isfinite(truth)
+    assert both.sum() > 300 and np.sum(np.isfinite(depth) != np.isfinite(truth)) <= 10
+    np.testing.assert_allclose(depth[both], truth[both], atol=2e-4)
+
+
 def test_a_shape_of_parts_of_another_width_is_refused():
     """The kernels read a fixed number of values per part: a row short would be read past."""
-    with pytest.raises(ValueError, match=r"Shape.parts: shape \(1, 8\), expected \(n, 9\)"):
-        Shape(np.zeros((1, 8)), (False,), (True,))
+    with pytest.raises(ValueError, match=r"Shape.parts: shape \(1, 9\), expected \(n, 10\)"):
+        Shape(np.zeros((1, 9)), (False,), (True,))
 
 
 def test_a_merged_zone_reads_the_signal_weighted_mean_depth():
@@ -109,7 +146,8 @@ def test_a_zone_bundle_culls_only_boxes_none_of_its_sub_rays_meets():
         cast_all = np.zeros_like(rays.planes)
         parts = np.c_[rng.uniform([0.35, -0.15, -np.pi, 0.01, 0.01, 0.01],
                                   [0.65, 0.15, np.pi, 0.2, 0.2, 0.2], (3, 6)),
-                      rng.integers(0, 2, (3, 3))]
+                      rng.integers(0, 2, (3, 3)), rng.uniform(-1, 1, 3)]
+        parts[:, 9] *= parts[:, 8] == 0  # a tapered part has rz = 0
         solid = np.array([True, True, False])
         rows = np.arange(len(rays))
         for x in parts:
@@ -132,7 +170,7 @@ def test_a_sub_ray_that_sees_a_surface_before_a_region_does_not_cross_it():
     enters the slab 0.09 <= x <= 0.11 (0.1 tall) at t = 0.39 / 0.35 = 1.114, at z = 0.054:
     it crosses the slab, but not before a depth of 1 (the top it sees), only before 1.2."""
     rays = _rays([-0.3, 0, 0.5], [[0.35, 0, -0.4]])
-    slab = np.array([0.1, 0.0, 0.0, 0.02, 0.2, 0.1, 0, 0, 0])
+    slab = np.array([0.1, 0.0, 0.0, 0.02, 0.2, 0.1, 0, 0, 0, 0])
     assert rays.crossing(slab, 0.0)[0, 0]
     assert not rays.crossing(slab, 0.0, before=np.array([[1.0]]))[0, 0]
     assert rays.crossing(slab, 0.0, before=np.array([[1.2]]))[0, 0]
@@ -149,8 +187,8 @@ def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads()
     problem = Problem(rays, 0.0, np.array(scenario.cell.table_extent),
                       ReadingRule.of(model, sensor_behaviour(scenario)), 2.0, 5.0, 0.0005)
     body = box_shape(truth, 0.0).parts[0]
-    body[6:] = (1, 1, 0)  # an upright cylinder, and a box part beside it
-    shape = Shape(np.array([body, [*truth.center[:2] + 0.05, 0.3, 0.03, 0.02, 0.05, 0, 0, 0]]),
+    body[6:9] = (1, 1, 0)  # an upright cylinder, and a box part beside it
+    shape = Shape(np.array([body, [*truth.center[:2] + 0.05, 0.3, 0.03, 0.02, 0.05, 0, 0, 0, 0]]),
                   (True, True), (True, False))
     before = numba.get_num_threads()
     try:
@@ -162,11 +200,14 @@ def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads()
     assert np.array_equal(alone.depths, fit.depths) and np.array_equal(alone.costs, fit.costs)
     near = np.arange(len(problem))
     boxed = box_shape(truth, 0.0)
+    # The cylinder narrowing upward: a side's move moves the opposite side too.
+    tapered = shape.with_part(0, np.r_[body[:9], 0.4], tapered=True)
     # The last two: grids without the part as it is (a solid's candidates beyond the
     # problem's region are dropped), a box's side and top moved inward only.
     for trial, k, coordinate, grid in (
             (shape, 0, 1, 0.004 * np.arange(-3, 4)), (shape, 0, 8, 0.15 * np.arange(7)),
             (shape, 1, 4, 0.004 * np.arange(-3, 4)), (shape, 1, 5, 0.1 * np.arange(-3, 4)),
+            (tapered, 0, 1, 0.004 * np.arange(-3, 4)), (tapered, 0, 9, 0.2 * np.arange(-3, 4)),
             (boxed, 0, 1, 0.004 * np.arange(-6, -2)), (boxed, 0, 4, 0.004 * np.arange(-6, -2))):
         fit = problem.evaluate(trial)
         xs = np.array([moved(trial.parts[k], coordinate, g) for g in grid])
@@ -256,7 +297,7 @@ def test_the_forward_model_predicts_what_drakes_renderer_and_the_device_read():
     rays = ZoneRays.concatenate([zone_rays(f, X, model) for f, X in frames], 64)
     problem = Problem(rays, 0.0, np.array(scenario.cell.table_extent),
                       ReadingRule.of(model, sensor_behaviour(scenario)), 2.0, 5.0, 0.0005)
-    shape = Shape(np.array([[*truth.center[:2], truth.yaw, *truth.dims, 0, 0, 0]]), (False,),
+    shape = Shape(np.array([[*truth.center[:2], truth.yaw, *truth.dims, 0, 0, 0, 0]]), (False,),
                   (True,))
     predicted = problem.evaluate(shape).predicted
     errors = np.abs(predicted - rays.measured)

@@ -182,7 +182,8 @@ def box_entry(scenario: Scenario, estimate: BoxEstimate | None) -> dict[str, Any
             dims_lower=estimate.dims_lower.tolist(), dims_upper=estimate.dims_upper.tolist(),
             zones=estimate.n_zones, shape=estimate.shape.name(),
             parts=[{"solid": solid, "rounded": rounded, "center": x[:2].tolist(),
-                    "yaw": float(x[2]), "dims": x[3:6].tolist(), "rounding": x[6:].tolist()}
+                    "yaw": float(x[2]), "dims": x[3:6].tolist(), "rounding": x[6:9].tolist(),
+                    "taper": float(x[9])}
                    for x, solid, rounded in zip(estimate.shape.parts, estimate.shape.solid,
                                                 estimate.shape.rounded, strict=True)],
             misfit=estimate.misfit,

@@ -3,17 +3,17 @@ the shape's structure chosen by an information criterion.
 
 The objective is the soft-L1 sum of every fitted zone's residual in the model's sigma
 (`forward._loss`). Sub-ray sampling makes it piecewise constant in the parts' sides, so it is
-minimised by a coordinate grid search: each side, the top, the yaw and the rounding of each
-part in turn, every candidate of a grid in one kernel call that re-casts only the sub-rays
-that reach what the coordinate moves before the surface they see now (the others' depths
-cannot change).
+minimised by a coordinate grid search: each side, the top, the yaw, the rounding and the
+taper of each part in turn, every candidate of a grid in one kernel call that re-casts only
+the sub-rays that reach what the coordinate moves before the surface they see now (the
+others' depths cannot change).
 
-Which shape (a box, a rounded part, more parts, holes) is chosen by the Bayesian information
-criterion with the noise scale unknown, n ln(C / n) + k ln n for a cost C over n zones and k
-parameters: a box is a solid part with its rounding fixed at zero, and a richer shape is kept
-only where it explains the readings by more than its parameters would explain noise, measured
-against the misfit the readings leave (on a device the model does not explain, that misfit is
-large and a part must explain that much more).
+Which shape (a box, a rounded or tapered part, more parts, holes) is chosen by the Bayesian
+information criterion with the noise scale unknown, n ln(C / n) + k ln n for a cost C over n
+zones and k parameters: a box is a solid part with its rounding fixed at zero, and a richer
+shape is kept only where it explains the readings by more than its parameters would explain
+noise, measured against the misfit the readings leave (on a device the model does not
+explain, that misfit is large and a part must explain that much more).
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ from lrnbv_drake.core.estimation.shape import (
     HOLE_HEIGHT,
     ROUNDINGS,
     SIDES,
+    TAPER,
+    TAPERED,
     TOP,
     YAW,
     Shape,
@@ -42,6 +44,8 @@ from lrnbv_drake.core.estimation.shape import (
 #: about 0.3 % for the model's noise); and how many such zones a structure move needs.
 OUTLIER = 3.0
 MIN_OUTLIERS = 3
+#: The tapers a tapered class is started from, the best fitting kept.
+TAPER_STARTS = (-0.6, -0.3, 0.0, 0.3, 0.6, 0.9)
 #: Residual, sigmas, of the zones a part or a hole is proposed around: lower than an
 #: outlier's, as a thin part (a plate on the table) moves each zone by a sigma or two; the
 #: information criterion then decides whether the part stays.
@@ -147,11 +151,12 @@ class Problem:
         only the candidates inside `region` may not hold it)."""
         x, rays, shape = fit.shape.parts[k], self.rays, fit.shape
         lo, hi = min(lo, 0.0), max(hi, 0.0)
-        if coordinate in SIDES and not shape.rounded[k]:
+        whole = shape.rounded[k] or shape.tapered[k]  # every side moves the whole part
+        if coordinate in SIDES and not whole:
             axis = 3 + coordinate // 2
             region = moved(moved(x, coordinate, hi), coordinate ^ 1, -(x[axis] + lo) + 1e-4)
             return rays.crossing(region, self.table, near, fit.depths)
-        if coordinate == TOP and not shape.rounded[k]:
+        if coordinate == TOP and not whole:
             region = x.copy()
             region[5] = hi - lo + 1e-4
             return rays.crossing(region, self.table + x[5] + lo, near, fit.depths)
@@ -160,6 +165,9 @@ class Problem:
             region[3] = region[4] = math.hypot(x[3], x[4])
         elif coordinate <= TOP:
             region = moved(x, coordinate, hi)
+        elif coordinate == TAPER:  # its box grows with the taper's size (`moved`)
+            ends = np.clip(x[TAPER] + np.array([lo, hi]), -1.0, 1.0)
+            region = moved(x, TAPER, ends[np.argmax(np.abs(ends))])
         return rays.crossing(region, self.table, near, fit.depths)
 
     def trials(self, fit: Fit, k: int, coordinate: int, xs: np.ndarray, lo: float, hi: float,
@@ -181,17 +189,21 @@ class Problem:
             *self.loss)
 
     def reclassed(self, fit: Fit, k: int, rounding: tuple[float, float, float] | None,
-                  span: float) -> Fit:
-        """Part k of `fit` as a box (`rounding` None) or with `rounding`, from the part of
-        the same volume, searched within `span` (two sweeps of its coordinates)."""
-        key = (id(fit), k, rounding, span)
+                  span: float, tapered: bool = False) -> Fit:
+        """Part k of `fit` as a box (`rounding` None) or with `rounding`, its taper free or
+        not, from the part of the same volume untapered, searched within `span` (two sweeps
+        of its coordinates)."""
+        key = (id(fit), k, rounding, span, tapered)
         if key in self._reclassed:
             return self._reclassed[key][1]
         shape = fit.shape
-        x = np.r_[shape.parts[k][:6], (0, 0, 0) if rounding is None else rounding]
+        x = np.r_[shape.parts[k][:6], (0, 0, 0) if rounding is None else rounding, 0]
         if rounding is not None and not shape.rounded[k]:
             x[3:6] *= _volume_scale(np.array(rounding))
-        trial = self.evaluate(shape.with_part(k, x, rounded=rounding is not None))
+        flags = {"rounded": rounding is not None, "tapered": tapered}
+        # A taper starts where it fits best on a grid: one sweep moves it at most 0.3.
+        trial = min((self.evaluate(shape.with_part(k, np.r_[x[:9], tau], **flags))
+                     for tau in (TAPER_STARTS if tapered else (0.0,))), key=lambda f: f.cost)
         out = self.refine(trial, span, only=k, max_sweeps=2)
         self._reclassed[key] = (fit, out)
         return out
@@ -208,8 +220,8 @@ class Problem:
         steps about a quarter of `span` (the sides and top; the yaw and rounding in
         proportion), moved while its best lies at the grid's edge, then of the finest
         steps."""
-        fine = (self.step,) * 5 + (math.radians(0.2),) + (0.02,) * 3
-        coarse = (span / 4,) * 5 + (math.radians(1.5) * span / 0.03,) + (min(span * 5, 0.25),) * 3
+        fine = (self.step,) * 5 + (math.radians(0.2),) + (0.02,) * 4
+        coarse = (span / 4,) * 5 + (math.radians(1.5) * span / 0.03,) + (min(span * 5, 0.25),) * 4
         for _ in range(max_sweeps):
             before = fit.cost
             for k in range(len(fit.shape.rounded)) if only is None else (only,):
@@ -265,10 +277,19 @@ def _volume_scale(r: np.ndarray) -> np.ndarray:
 
 def classings(problem: Problem, fit: Fit, k: int, span: float, box: bool = True
               ) -> list[Fit]:
-    """Part k as a box (unless not `box`) and as each rounding (`ROUNDINGS`; a hole: a box
-    or an upright cylinder), each searched within `span` from the part of the same volume."""
-    roundings = ROUNDINGS if fit.shape.solid[k] else ROUNDINGS[:1]
-    return [problem.reclassed(fit, k, r, span) for r in ((None,) if box else ()) + roundings]
+    """Part k as a box (unless not `box`), as each rounding (`ROUNDINGS`) and, the shape's
+    only solid, as a tapered box and a tapered upright cylinder (`TAPERED`); a hole as a box
+    or an upright cylinder. Each searched within `span` from the part of the same volume.
+
+    A taper is a class of a whole solid (a cone, a pyramid, a bucket): on a part among
+    others it draws a skirt at its base or an overhang at its top that the other parts hide
+    from the readings, which then barely bound the box (a dumbbell's bar 30 mm beyond its
+    discs)."""
+    shape = fit.shape
+    roundings = ROUNDINGS if shape.solid[k] else ROUNDINGS[:1]
+    tapered = TAPERED if shape.solid[k] and sum(shape.solid) == 1 else ()
+    return ([problem.reclassed(fit, k, r, span) for r in ((None,) if box else ()) + roundings]
+            + [problem.reclassed(fit, k, r, span, tapered=True) for r in tapered])
 
 
 def _classed(problem: Problem, fit: Fit, k: int, span: float) -> Fit:
@@ -312,12 +333,12 @@ def _proposed(problem: Problem, fit: Fit, solid: bool) -> tuple[np.ndarray | Non
     lo, hi = local.min(axis=0) - grow, local.max(axis=0) + grow
     height = max(points[:, 2].max() - problem.table + 0.005, 0.01) if solid else HOLE_HEIGHT
     return np.array([*(rotation @ ((lo + hi) / 2)), yaw, *np.maximum(hi - lo, 0.01), height,
-                     0, 0, 0]), len(points)
+                     0, 0, 0, 0]), len(points)
 
 
 def _halves(shape: Shape, k: int, axis: int) -> Shape:
     """Solid part k cut across its side `axis` (0: length, 1: width) into two boxes."""
-    x = np.r_[shape.parts[k][:6], 0, 0, 0]
+    x = np.r_[shape.parts[k][:6], 0, 0, 0, 0]
     size = x[3 + axis]
     return (shape.without(k).added(moved(x, 2 * axis + 1, -size / 2), True)
             .added(moved(x, 2 * axis, -size / 2), True))
@@ -349,7 +370,8 @@ def moves(problem: Problem, fit: Fit, max_parts: int) -> list[Move]:
     outlier = _outliers(problem, fit)
     shape, found = fit.shape, []
     if len(shape.solid) < max_parts:
-        for kind in ("solid", "hole"):
+        # A tapered solid takes no second one (`classings`); a hole it may.
+        for kind in ("hole",) if any(shape.tapered) else ("solid", "hole"):
             part, asking = _proposed(problem, fit, kind == "solid")
             if part is not None:
                 found.append(Move(kind, -1, asking, part))
@@ -392,9 +414,12 @@ def choose_structure(problem: Problem, fit: Fit, max_parts: int, budget: int,
                   < (shape.n_params - t.shape.n_params) * math.log(len(problem))]
         # The simplest shape, a box around the estimate, is always tried again: a structure
         # chosen on the first readings must not hold on after more readings explain it away.
-        if len(shape.solid) > 1 or shape.rounded[0]:
-            trials.append(problem.refine(problem.evaluate(box_shape(shape.box(problem.table),
-                                                                    problem.table)), 0.01))
+        # So is that box tapered (a cone or a pyramid stacked from parts).
+        if len(shape.solid) > 1 or shape.rounded[0] or shape.tapered[0]:
+            boxed = problem.evaluate(box_shape(shape.box(problem.table), problem.table))
+            trials.append(problem.refine(boxed, 0.01))
+            if len(shape.solid) > 1:
+                trials += [problem.reclassed(boxed, 0, r, 0.01, tapered=True) for r in TAPERED]
         asked = [m for m in moves(problem, fit, max_parts) if not skip(m)][:max(budget, 0)]
         for move in asked:
             trials += _tried(problem, fit, move, max_parts)

@@ -14,10 +14,15 @@ The shape is solid parts minus hole parts (`PART_SIZE` numbers each): a box (cen
 yaw, length, width, height, standing on the table) cut by the ellipsoid rx (x/a)^2 +
 ry (y/b)^2 + rz (z/c)^2 <= 1 in the box's own frame (a, b, c its half sizes). All r = 0 is
 the box; (1, 1, 0) an upright elliptic cylinder, (1, 1, 1) an ellipsoid, (0, 1, 1) a
-cylinder lying along the box's length. Every part is convex, so a sub-ray meets it in one
-interval, exactly and in a few dozen flops, and its first visible point is the first entry
-into a solid, or exit from a hole inside one, that no hole covers. A clip plane n . p <=
-offset cuts every solid part (the interval's inward moves).
+cylinder lying along the box's length. A taper tau in [-1, 1] scales the cross-section
+linearly with height about the part's axis, by s = 1 - tau h / H at height h of H (tau > 0:
+narrowing upward, 1 a cone or pyramid) or s = 1 + tau (1 - h / H) (tau < 0: widening
+upward, a bucket), so the box still bounds the part: its sides become |x| <= a s and
+|y| <= b s, and an upright cylinder's quadric rx (x/a)^2 + ry (y/b)^2 <= s^2, still
+linear and quadratic along a ray (a tapered part has rz = 0). Every part is convex, so a
+sub-ray meets it in one interval, exactly and in a few dozen flops, and its first visible
+point is the first entry into a solid, or exit from a hole inside one, that no hole
+covers. A clip plane n . p <= offset cuts every solid part (the interval's inward moves).
 """
 
 from __future__ import annotations
@@ -36,8 +41,8 @@ from lrnbv_drake.core.sensing.sensor import (
 )
 from lrnbv_drake.core.sensing.tof_device import MERGED_DEPTHS, DeviceBehaviour, sorted_target
 
-#: Numbers per part: centre x, y, yaw, length, width, height, rx, ry, rz.
-PART_SIZE = 9
+#: Numbers per part: centre x, y, yaw, length, width, height, rx, ry, rz, taper.
+PART_SIZE = 10
 #: The clip plane that cuts nothing.
 NO_CLIP = np.array([0.0, 0.0, 0.0, 1.0])
 
@@ -152,10 +157,23 @@ def _interval(o, d, x, c, s, table, clip):
     half = (0.5 * x[3], 0.5 * x[4], 0.5 * x[5])
     p = (c * px + s * py, -s * px + c * py, o[2] - table - half[2])
     v = (c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2])
+    # The cross-section's scale along the ray, g0 + g1 t (the module doc; 1 untapered).
+    tau = x[9]
+    g0 = 1.0 - max(-tau, 0.0) - tau * (p[2] / x[5] + 0.5)
+    g1 = -tau * v[2] / x[5]
     t0, t1 = -np.inf, np.inf
-    qa, qb, qc = 0.0, 0.0, -1.0
+    qa, qb, qc = -g1 * g1, -2.0 * g0 * g1, -g0 * g0
     for i in range(3):
-        if v[i] == 0.0:
+        if i < 2 and tau != 0.0:
+            for sign in (1.0, -1.0):  # sign (p_i + t v_i) <= half_i (g0 + g1 t)
+                a, b = sign * v[i] - half[i] * g1, half[i] * g0 - sign * p[i]
+                if a > 0.0:
+                    t1 = min(t1, b / a)
+                elif a < 0.0:
+                    t0 = max(t0, b / a)
+                elif b < 0.0:
+                    return np.inf, -np.inf
+        elif v[i] == 0.0:
             if abs(p[i]) > half[i]:
                 return np.inf, -np.inf
         else:
@@ -165,12 +183,30 @@ def _interval(o, d, x, c, s, table, clip):
         qa += r * v[i] * v[i]
         qb += 2.0 * r * p[i] * v[i]
         qc += r * p[i] * p[i]
-    if qa > 0.0:
+    if x[6] + x[7] + x[8] > 0.0:
         disc = qb * qb - 4.0 * qa * qc
-        if disc < 0.0:
+        if qa > 0.0:
+            if disc < 0.0:
+                return np.inf, -np.inf
+            root = math.sqrt(disc)
+            t0, t1 = max(t0, (-qb - root) / (2.0 * qa)), min(t1, (-qb + root) / (2.0 * qa))
+        elif qa < 0.0:
+            # A tapered quadric: inside outside the roots, of which one piece lies within
+            # the slabs (the other nappe is beyond the apex, outside them).
+            if disc > 0.0:
+                root = math.sqrt(disc)
+                lo, hi = (-qb + root) / (2.0 * qa), (-qb - root) / (2.0 * qa)
+                if min(t1, lo) - t0 >= t1 - max(t0, hi):
+                    t1 = min(t1, lo)
+                else:
+                    t0 = max(t0, hi)
+        elif qb != 0.0:
+            if qb > 0.0:
+                t1 = min(t1, -qc / qb)
+            else:
+                t0 = max(t0, -qc / qb)
+        elif qc > 0.0:
             return np.inf, -np.inf
-        root = math.sqrt(disc)
-        t0, t1 = max(t0, (-qb - root) / (2.0 * qa)), min(t1, (-qb + root) / (2.0 * qa))
     nd = clip[0] * d[0] + clip[1] * d[1] + clip[2] * d[2]
     no = clip[0] * o[0] + clip[1] * o[1] + clip[2] * o[2]
     if nd == 0.0:

@@ -17,7 +17,7 @@ import numpy as np
 
 from lrnbv_drake.core.estimation.fit import Fit, Problem, classings
 from lrnbv_drake.core.estimation.forward import NO_CLIP
-from lrnbv_drake.core.estimation.shape import TOP, Shape, moved, part_of_box
+from lrnbv_drake.core.estimation.shape import TAPER, TOP, Shape, moved, part_of_box
 
 
 def profile(cost: Callable[[float], float], reach: float, rise: float, best: float,
@@ -56,11 +56,13 @@ def profile(cost: Callable[[float], float], reach: float, rise: float, best: flo
     return (inside + outside) / 2
 
 
-def _extended(shape: Shape, direction: np.ndarray, support: float, value: float) -> Shape:
-    """`shape` with every solid reaching `support` along the horizontal `direction` (within
-    a millimetre) extended by `value` along it, each along its side most aligned with it."""
+def _extended(shape: Shape, direction: np.ndarray, support: float, value: float,
+              tapered_only: bool = False) -> Shape:
+    """`shape` with every solid (tapered, if `tapered_only`) reaching `support` along the
+    horizontal `direction` (within a millimetre) extended by `value` along it, each along
+    its side most aligned with it."""
     for k, x in enumerate(shape.parts):
-        if not shape.solid[k]:
+        if not shape.solid[k] or (tapered_only and not shape.tapered[k]):
             continue
         alone = Shape(x[None], (True,), (True,))
         if float(np.max(alone.footprint() @ direction)) < support - 0.001:
@@ -86,8 +88,10 @@ def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: floa
     `floor` a side), even where such a class leaves it no rise. `span`: `slice_bounds`'."""
     shape = fit.shape
     others = [other for k in range(len(shape.solid)) if shape.solid[k]
-              # A box part's own class is the fit: only a rounded part is tried as a box.
-              for other in classings(problem, fit, k, 0.01, box=shape.rounded[k])]
+              # A box part's own class is the fit: only a rounded or tapered part is tried
+              # as a box.
+              for other in classings(problem, fit, k, 0.01,
+                                     box=shape.rounded[k] or shape.tapered[k])]
     level = min([fit.cost] + [other.cost for other in others]) + rise
     # The fit's box with `slice_bounds`' floor on each side (the top's alone on the height).
     dims, sides = shape.box(problem.table).dims, floor * np.array([2.0, 2.0, 1.0])
@@ -104,7 +108,8 @@ def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: floa
 def slice_bounds(problem: Problem, fit: Fit, rise: float, reach: float, floor: float,
                  span: float) -> tuple[np.ndarray, np.ndarray]:
     """(lower, upper) of the box's length, width and height: how far each of its sides can
-    move in (every solid clipped by it) and out (the solids that reach it extended), the
+    move in (every solid clipped by it, a tapered part's side moved in with its faces) and
+    out (the solids that reach it extended, a part narrowing upward along its faces), the
     rest held, with the cost within `rise` (`profile`, scanned every two floors: the
     sub-ray pitch, widened by the misfit as the floor is; `span` about a zone's footprint),
     and at least `floor`. Each move re-evaluates only the zones crossing the slab it can
@@ -135,14 +140,22 @@ def slice_bounds(problem: Problem, fit: Fit, rise: float, reach: float, floor: f
         def cost(trial: Shape, clip: np.ndarray = NO_CLIP, zones=zones, base=base) -> float:
             return base + problem.evaluate(trial, clip, zones).cost
 
-        def inward(value: float, normal=normal, support=support, cost=cost) -> float:
-            return cost(shape, np.r_[normal, support - value])
+        def inward(value: float, normal=normal, support=support, i=i, cost=cost) -> float:
+            # A tapered part's side moves in, its faces with it: a clip would cut only a
+            # sliver at its base's edge, which the readings barely see.
+            moved_in = shape if i == TOP else _extended(shape, normal[:2], support, -value,
+                                                        tapered_only=True)
+            return cost(moved_in, np.r_[normal, support - value])
 
         def outward(value: float, normal=normal, support=support, i=i, cost=cost) -> float:
             if i != TOP:
                 return cost(_extended(shape, normal[:2], support, value))
             parts = shape.parts.copy()
             tall = np.array(shape.solid) & (parts[:, 5] >= box.dims[2] - 0.001)
+            # A part narrowing upward rises along its faces, its taper growing with it.
+            narrowing = tall & (parts[:, TAPER] > 0.0)
+            parts[narrowing, TAPER] = np.minimum(
+                parts[narrowing, TAPER] * (1.0 + value / parts[narrowing, 5]), 1.0)
             parts[tall, 5] += value
             return cost(dc.replace(shape, parts=parts))
 

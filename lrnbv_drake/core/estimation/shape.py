@@ -1,5 +1,6 @@
 """The fitted shape: solid parts minus holes, each a box standing on the table with a
-quadric rounding (`forward` module doc), and the moves of one coordinate the search makes."""
+quadric rounding and a taper (`forward` module doc), and the moves of one coordinate the
+search makes."""
 
 from __future__ import annotations
 
@@ -14,62 +15,75 @@ from lrnbv_drake.core.estimation.forward import PART_SIZE
 #: The roundings a solid part is tried with: an upright cylinder, an ellipsoid, and a
 #: cylinder lying along either side (`forward` module doc); a hole is a box or the first.
 ROUNDINGS = ((1.0, 1.0, 0.0), (1.0, 1.0, 1.0), (0.0, 1.0, 1.0), (1.0, 0.0, 1.0))
+#: The roundings a solid part is tried with tapered: a box (a frustum of a pyramid) and an
+#: upright cylinder (of a cone).
+TAPERED = (None, (1.0, 1.0, 0.0))
 #: Smallest side of a part, metres.
 MIN_SIDE = 0.002
 #: A hole's height: it runs from the table up through every solid.
 HOLE_HEIGHT = 2.0
-#: Coordinates of a part: its four sides (moved outward), its top, its yaw, its rounding.
-SIDES, TOP, YAW = (0, 1, 2, 3), 4, 5
+#: Coordinates of a part: its four sides (moved outward), its top, its yaw, its rounding
+#: (6-8) and its taper.
+SIDES, TOP, YAW, TAPER = (0, 1, 2, 3), 4, 5, 9
 
 @dc.dataclass(frozen=True)
 class Shape:
-    """Solid parts minus holes (`PART_SIZE` numbers each) and which parts have their
-    rounding free (the others are boxes)."""
+    """Solid parts minus holes (`PART_SIZE` numbers each), which parts have their rounding
+    free (the others are boxes) and which their taper (the others untapered)."""
 
     parts: np.ndarray
     rounded: tuple[bool, ...]
     solid: tuple[bool, ...]
+    tapered: tuple[bool, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.parts.ndim != 2 or self.parts.shape[1] != PART_SIZE:
             raise ValueError(f"Shape.parts: shape {self.parts.shape}, expected (n, {PART_SIZE})")
+        if self.tapered is None:
+            object.__setattr__(self, "tapered", (False,) * len(self.solid))
 
     @property
     def n_params(self) -> int:
-        return sum((6 if s else 5) + (3 if s else 2) * r
-                       for r, s in zip(self.rounded, self.solid, strict=True))
+        return sum(len(self.coordinates(k)) for k in range(len(self.solid)))
 
     def coordinates(self, k: int) -> tuple[int, ...]:
-        """The coordinates part k is searched in (a hole has no top and no vertical
-        rounding)."""
-        if self.solid[k]:
-            return tuple(range(9 if self.rounded[k] else 6))
-        return (0, 1, 2, 3, YAW, 6, 7) if self.rounded[k] else (0, 1, 2, 3, YAW)
+        """The coordinates part k is searched in (a hole has no top, no vertical rounding
+        and no taper; a tapered part no vertical rounding)."""
+        rounding = (6, 7) if self.tapered[k] or not self.solid[k] else (6, 7, 8)
+        return ((0, 1, 2, 3) + (TOP,) * self.solid[k] + (YAW,) + rounding * self.rounded[k]
+                + (TAPER,) * self.tapered[k])
 
-    def with_part(self, k: int, x: np.ndarray, rounded: bool | None = None) -> Shape:
+    def with_part(self, k: int, x: np.ndarray, rounded: bool | None = None,
+                  tapered: bool | None = None) -> Shape:
         parts = self.parts.copy()
         parts[k] = x
-        flags = list(self.rounded)
+        flags, tapers = list(self.rounded), list(self.tapered)
         if rounded is not None:
             flags[k] = rounded
-        return dc.replace(self, parts=parts, rounded=tuple(flags))
+        if tapered is not None:
+            tapers[k] = tapered
+        return dc.replace(self, parts=parts, rounded=tuple(flags), tapered=tuple(tapers))
 
     def added(self, x: np.ndarray, solid: bool) -> Shape:
         return dc.replace(self, parts=np.vstack([self.parts, x]),
-                          rounded=(*self.rounded, False), solid=(*self.solid, solid))
+                          rounded=(*self.rounded, False), solid=(*self.solid, solid),
+                          tapered=(*self.tapered, False))
 
     def without(self, k: int) -> Shape:
         keep = [i for i in range(len(self.rounded)) if i != k]
         return dc.replace(self, parts=self.parts[keep],
                           rounded=tuple(self.rounded[i] for i in keep),
-                          solid=tuple(self.solid[i] for i in keep))
+                          solid=tuple(self.solid[i] for i in keep),
+                          tapered=tuple(self.tapered[i] for i in keep))
 
     def name(self) -> str:
-        """"box", "rounded" or "N parts" (holes counted apart)."""
+        """"box", "rounded", "tapered" or "N parts" (holes counted apart)."""
         solids, holes = sum(self.solid), len(self.solid) - sum(self.solid)
+        single = [(r, x) for r, x, s in zip(self.rounded, self.parts, self.solid, strict=True)
+                  if s]
         text = (f"{solids} parts" if solids > 1 else
-                "rounded" if any(r and np.any(x[6:] > 0) for r, x, s in
-                                 zip(self.rounded, self.parts, self.solid, strict=True) if s)
+                "tapered" if any(x[TAPER] != 0 for _, x in single) else
+                "rounded" if any(r and np.any(x[6:9] > 0) for r, x in single)
                 else "box")
         return text + (f", {holes} hole{'s' * (holes > 1)}" if holes else "")
 
@@ -117,12 +131,14 @@ def part_of_box(box: OrientedBox, table: float) -> np.ndarray:
     """A box part with the footprint and top of `box` (at least MIN_SIDE each way)."""
     dims = np.maximum(box.dims, MIN_SIDE)
     top = max(box.center[2] + box.dims[2] / 2 - table, MIN_SIDE)
-    return np.array([box.center[0], box.center[1], box.yaw, dims[0], dims[1], top, 0, 0, 0])
+    return np.array([box.center[0], box.center[1], box.yaw, dims[0], dims[1], top, 0, 0, 0, 0])
 
 
 def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
     """Part x with a side moved outward by `value` (0-3), its top raised (4), its yaw turned
-    (5), or its rounding's r (6-8) set to `value`."""
+    (5), its rounding's r (6-8) set to `value` (within [0, 1]) or its taper (9, within
+    [-1, 1]) turned about its section at mid-height, which stays: a taper alone would move
+    the top's edges, which the readings see best, and the base's against each other."""
     y = x.copy()
     if coordinate in SIDES:
         axis = 3 + coordinate // 2
@@ -137,6 +153,10 @@ def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
         y[5] = max(y[5] + value, MIN_SIDE)
     elif coordinate == YAW:
         y[2] += value
+    elif coordinate == TAPER:
+        value = min(max(value, -1.0), 1.0)
+        y[3:5] *= (1.0 - abs(y[TAPER]) / 2) / (1.0 - abs(value) / 2)
+        y[TAPER] = value
     else:
         y[coordinate] = min(max(value, 0.0), 1.0)
     return y
