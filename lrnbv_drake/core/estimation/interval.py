@@ -56,13 +56,11 @@ def profile(cost: Callable[[float], float], reach: float, rise: float, best: flo
     return (inside + outside) / 2
 
 
-def _extended(shape: Shape, direction: np.ndarray, support: float, value: float,
-              tapered_only: bool = False) -> Shape:
-    """`shape` with every solid (tapered, if `tapered_only`) reaching `support` along the
-    horizontal `direction` (within a millimetre) extended by `value` along it, each along
-    its side most aligned with it."""
+def _extended(shape: Shape, direction: np.ndarray, support: float, value: float) -> Shape:
+    """`shape` with every solid reaching `support` along the horizontal `direction` (within
+    a millimetre) extended by `value` along it, each along its side most aligned with it."""
     for k, x in enumerate(shape.parts):
-        if not shape.solid[k] or (tapered_only and not shape.tapered[k]):
+        if not shape.solid[k]:
             continue
         alone = Shape(x[None], (True,), (True,))
         if float(np.max(alone.footprint() @ direction)) < support - 0.001:
@@ -108,12 +106,11 @@ def intervals(problem: Problem, fit: Fit, rise: float, reach: float, floor: floa
 def slice_bounds(problem: Problem, fit: Fit, rise: float, reach: float, floor: float,
                  span: float) -> tuple[np.ndarray, np.ndarray]:
     """(lower, upper) of the box's length, width and height: how far each of its sides can
-    move in (every solid clipped by it, a tapered part's side moved in with its faces) and
-    out (the solids that reach it extended, a part narrowing upward along its faces), the
-    rest held, with the cost within `rise` (`profile`, scanned every two floors: the
-    sub-ray pitch, widened by the misfit as the floor is; `span` about a zone's footprint),
-    and at least `floor`. Each move re-evaluates only the zones crossing the slab it can
-    sweep."""
+    move in (every solid clipped by it) and out (the solids that reach it extended, a part
+    narrowing upward raised along its faces), the rest held, with the cost within `rise`
+    (`profile`, scanned every two floors: the sub-ray pitch, widened by the misfit as the
+    floor is; `span` about a zone's footprint), and at least `floor`. Each move re-evaluates
+    only the zones crossing the slab it can sweep."""
     shape = fit.shape
     box = shape.box(problem.table)
     c, s = math.cos(box.yaw), math.sin(box.yaw)
@@ -140,12 +137,8 @@ def slice_bounds(problem: Problem, fit: Fit, rise: float, reach: float, floor: f
         def cost(trial: Shape, clip: np.ndarray = NO_CLIP, zones=zones, base=base) -> float:
             return base + problem.evaluate(trial, clip, zones).cost
 
-        def inward(value: float, normal=normal, support=support, i=i, cost=cost) -> float:
-            # A tapered part's side moves in, its faces with it: a clip would cut only a
-            # sliver at its base's edge, which the readings barely see.
-            moved_in = shape if i == TOP else _extended(shape, normal[:2], support, -value,
-                                                        tapered_only=True)
-            return cost(moved_in, np.r_[normal, support - value])
+        def inward(value: float, normal=normal, support=support, cost=cost) -> float:
+            return cost(shape, np.r_[normal, support - value])
 
         def outward(value: float, normal=normal, support=support, i=i, cost=cost) -> float:
             if i != TOP:
