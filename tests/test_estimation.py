@@ -327,10 +327,12 @@ def _cell_like(truth: OrientedBox) -> OrientedBox:
 
 # The bounds: a box's flat sides are located within half a sub-ray pitch (about 2 mm at
 # these views' range); a round side is seen only at grazing incidence, within about a pitch
-# on each side (5 mm across a can, 6 mm across a ball); an L-shape's inner corner as a ball.
+# on each side (5 mm across a can or a bucket, 6 mm across a ball); an L-shape's inner
+# corner as a ball.
 @pytest.mark.parametrize(("name", "bound_mm", "shape"), [
     ("horizontal_box", 2.0, "box"),
     ("can", 5.0, "rounded"),
+    ("bucket", 5.0, "tapered"),
     ("ball", 6.0, "rounded"),
     ("l_shape", 6.0, "2 parts"),
 ])
