@@ -157,7 +157,7 @@ class ShapeEstimator:
         corners = np.concatenate(corners)
         return Problem(rays.take(keep), self._table, self._extent, self._rule, p.loss_scale,
                        p.no_return, p.step, (corners.min(axis=0), corners.max(axis=0)),
-                       p.search_casts)
+                       p.search_casts, p.taper)
 
     def _pitch(self, problem: Problem) -> float:
         """The sub-rays' spacing at the fitted zones' median range: the objective is a

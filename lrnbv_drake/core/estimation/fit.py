@@ -78,8 +78,10 @@ class Problem:
     def __init__(self, rays: ZoneRays, table: float, extent: np.ndarray, rule: ReadingRule,
                  loss_scale: float, no_return: float, step: float,
                  region: tuple[np.ndarray, np.ndarray] | None = None,
-                 budget: float = math.inf) -> None:
+                 budget: float = math.inf, taper: bool = False) -> None:
         self.rays, self.table, self.rule = rays, table, rule
+        # Whether a shape's one solid may be tried tapered (`classings`, `choose_structure`).
+        self.taper = taper
         # The search's work: the sub-ray casts of its candidate grids (`trials`, most of its
         # time), and how many it may make before every further grid is skipped (a search
         # past it keeps the best shape it has).
@@ -278,7 +280,8 @@ def _volume_scale(r: np.ndarray) -> np.ndarray:
 def classings(problem: Problem, fit: Fit, k: int, span: float, box: bool = True
               ) -> list[Fit]:
     """Part k as a box (unless not `box`), as each rounding (`ROUNDINGS`) and, the shape's
-    only solid, as a tapered box and a tapered upright cylinder (`TAPERED`); a hole as a box
+    only solid, as a tapered box and a tapered upright cylinder (`TAPERED`, where the
+    problem allows a taper); a hole as a box
     or an upright cylinder. Each searched within `span` from the part of the same volume.
 
     A taper is a class of a whole solid (a cone, a pyramid, a bucket): on a part among
@@ -287,7 +290,7 @@ def classings(problem: Problem, fit: Fit, k: int, span: float, box: bool = True
     discs)."""
     shape = fit.shape
     roundings = ROUNDINGS if shape.solid[k] else ROUNDINGS[:1]
-    tapered = TAPERED if shape.solid[k] and sum(shape.solid) == 1 else ()
+    tapered = TAPERED if problem.taper and shape.solid[k] and sum(shape.solid) == 1 else ()
     return ([problem.reclassed(fit, k, r, span) for r in ((None,) if box else ()) + roundings]
             + [problem.reclassed(fit, k, r, span, tapered=True) for r in tapered])
 
@@ -418,7 +421,7 @@ def choose_structure(problem: Problem, fit: Fit, max_parts: int, budget: int,
         if len(shape.solid) > 1 or shape.rounded[0] or shape.tapered[0]:
             boxed = problem.evaluate(box_shape(shape.box(problem.table), problem.table))
             trials.append(problem.refine(boxed, 0.01))
-            if len(shape.solid) > 1:
+            if len(shape.solid) > 1 and problem.taper:
                 trials += [problem.reclassed(boxed, 0, r, 0.01, tapered=True) for r in TAPERED]
         asked = [m for m in moves(problem, fit, max_parts) if not skip(m)][:max(budget, 0)]
         for move in asked:
