@@ -281,8 +281,8 @@ def classings(problem: Problem, fit: Fit, k: int, span: float, box: bool = True
               ) -> list[Fit]:
     """Part k as a box (unless not `box`), as each rounding (`ROUNDINGS`) and, the shape's
     only solid, as a tapered box and a tapered upright cylinder (`TAPERED`, where the
-    problem allows a taper); a hole as a box
-    or an upright cylinder. Each searched within `span` from the part of the same volume.
+    problem allows a taper); a hole as a box or an upright cylinder. Each searched within
+    `span` from the part of the same volume.
 
     A taper is a class of a whole solid (a cone, a pyramid, a bucket): on a part among
     others it draws a skirt at its base or an overhang at its top that the other parts hide
