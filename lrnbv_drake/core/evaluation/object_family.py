@@ -4,7 +4,7 @@ tapering solids; and the held-out shapes, measured but never developed against: 
 vase, a lying triangular prism, a spool, a dome and a torus (record 0037: a set held out
 joins the family once a change is made for it, and a new one is held out).
 
-Each shape is built here from trimesh primitives and booleans (manifold3d), its sizes drawn
+Each shape is built here from the solids of `solids` (trimesh and manifold3d), its sizes drawn
 from its own seeded generator within its class's ranges, so the family is the same on every
 machine and nothing is shipped or downloaded. A shape is turned about z so that its axis-aligned
 box is its minimum-area box, and rests with its lowest point at z = 0 and its footprint centred
@@ -24,9 +24,18 @@ import numpy as np
 import shapely
 import trimesh
 
-#: Segments of a full circle (cylinders, tori) and subdivisions of a sphere.
-_SEGMENTS = 48
-_SUBDIVISIONS = 3
+from lrnbv_drake.core.evaluation.solids import (
+    SEGMENTS,
+    box,
+    cylinder,
+    ellipsoid,
+    hull,
+    lying,
+    minus,
+    polygon,
+    uniform,
+    union,
+)
 
 
 @dc.dataclass(frozen=True)
@@ -39,258 +48,205 @@ class FamilyShape:
     seed: int
 
 
-def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
-    return float(rng.uniform(lo, hi))
-
-
-def _box(x: float, y: float, z: float, at: tuple[float, float, float] = (0, 0, 0)
-         ) -> trimesh.Trimesh:
-    """A box of sides x, y, z standing on z = at[2], centred on (at[0], at[1])."""
-    mesh = trimesh.creation.box(extents=(x, y, z))
-    mesh.apply_translation((at[0], at[1], at[2] + z / 2))
-    return mesh
-
-
-def _cylinder(radius: float, height: float, at: tuple[float, float, float] = (0, 0, 0)
-              ) -> trimesh.Trimesh:
-    """An upright cylinder standing on z = at[2]."""
-    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=_SEGMENTS)
-    mesh.apply_translation((at[0], at[1], at[2] + height / 2))
-    return mesh
-
-
-def _lying(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
-    """`mesh` turned a quarter about y, so that its z axis lies along x."""
-    mesh = mesh.copy()
-    mesh.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (0, 1, 0)))
-    return mesh
-
-
-def _ellipsoid(a: float, b: float, c: float, at: tuple[float, float, float] = (0, 0, 0)
-               ) -> trimesh.Trimesh:
-    mesh = trimesh.creation.icosphere(subdivisions=_SUBDIVISIONS, radius=1.0)
-    mesh.apply_scale((a, b, c))
-    mesh.apply_translation(at)
-    return mesh
-
-
-def _union(*parts: trimesh.Trimesh) -> trimesh.Trimesh:
-    return trimesh.boolean.union(list(parts), engine="manifold")
-
-
-def _minus(mesh: trimesh.Trimesh, *cut: trimesh.Trimesh) -> trimesh.Trimesh:
-    return trimesh.boolean.difference([mesh, *cut], engine="manifold")
-
-
 # --- the classes --------------------------------------------------------------------------
 
 def _boxes(lo: tuple[float, float, float], hi: tuple[float, float, float]):
-    return lambda rng: _box(*(_u(rng, a, b) for a, b in zip(lo, hi, strict=True)))
+    return lambda rng: box(*(uniform(rng, a, b) for a, b in zip(lo, hi, strict=True)))
 
 
 def _lying_box(rng: np.random.Generator) -> trimesh.Trimesh:
-    return _box(_u(rng, 0.22, 0.30), _u(rng, 0.06, 0.09), _u(rng, 0.05, 0.07))
+    return box(uniform(rng, 0.22, 0.30), uniform(rng, 0.06, 0.09), uniform(rng, 0.05, 0.07))
 
 
 def _can(rng: np.random.Generator) -> trimesh.Trimesh:
-    return _cylinder(_u(rng, 0.033, 0.0425), _u(rng, 0.10, 0.13))
+    return cylinder(uniform(rng, 0.033, 0.0425), uniform(rng, 0.10, 0.13))
 
 
 def _tub(rng: np.random.Generator) -> trimesh.Trimesh:
-    radius, height = _u(rng, 0.075, 0.10), _u(rng, 0.08, 0.12)
-    return _minus(_cylinder(radius, height), _cylinder(radius - 0.004, height, (0, 0, 0.004)))
+    radius, height = uniform(rng, 0.075, 0.10), uniform(rng, 0.08, 0.12)
+    return minus(cylinder(radius, height), cylinder(radius - 0.004, height, (0, 0, 0.004)))
 
 
 def _lying_cylinder(rng: np.random.Generator) -> trimesh.Trimesh:
-    return _lying(_cylinder(_u(rng, 0.035, 0.05), _u(rng, 0.18, 0.26)))
+    return lying(cylinder(uniform(rng, 0.035, 0.05), uniform(rng, 0.18, 0.26)))
 
 
 def _sphere(rng: np.random.Generator) -> trimesh.Trimesh:
-    r = _u(rng, 0.04, 0.06)
-    return _ellipsoid(r, r, r)
+    r = uniform(rng, 0.04, 0.06)
+    return ellipsoid(r, r, r)
 
 
 def _fruit(lo: float, hi: float):
     def build(rng: np.random.Generator) -> trimesh.Trimesh:
-        size = _u(rng, lo, hi)
-        return _ellipsoid(size / 2, size / 2 * _u(rng, 0.85, 0.95), size / 2 * _u(rng, 0.8, 0.9))
+        size = uniform(rng, lo, hi)
+        return ellipsoid(size / 2, size / 2 * uniform(rng, 0.85, 0.95),
+                         size / 2 * uniform(rng, 0.8, 0.9))
     return build
 
 
 def _bottle_upright(rng: np.random.Generator) -> trimesh.Trimesh:
-    radius, body = _u(rng, 0.032, 0.04), _u(rng, 0.15, 0.19)
-    neck_r, neck = _u(rng, 0.012, 0.015), _u(rng, 0.04, 0.06)
-    shoulder = trimesh.creation.cone(radius=radius, height=radius * 1.2, sections=_SEGMENTS)
+    radius, body = uniform(rng, 0.032, 0.04), uniform(rng, 0.15, 0.19)
+    neck_r, neck = uniform(rng, 0.012, 0.015), uniform(rng, 0.04, 0.06)
+    shoulder = trimesh.creation.cone(radius=radius, height=radius * 1.2, sections=SEGMENTS)
     shoulder.apply_translation((0, 0, body))
-    return _union(_cylinder(radius, body), shoulder, _cylinder(neck_r, body + neck))
+    return union(cylinder(radius, body), shoulder, cylinder(neck_r, body + neck))
 
 
 def _bottle(rng: np.random.Generator) -> trimesh.Trimesh:
-    return _lying(_bottle_upright(rng))
+    return lying(_bottle_upright(rng))
 
 
 def _gable_carton(side: tuple[float, float], height: tuple[float, float]):
     def build(rng: np.random.Generator) -> trimesh.Trimesh:
-        s, h = _u(rng, *side), _u(rng, *height)
+        s, h = uniform(rng, *side), uniform(rng, *height)
         roof = s * 0.5
         # The gable: a prism whose ridge runs along y, and the sealed fin along its top.
         profile = shapely.Polygon([(-s / 2, 0), (s / 2, 0), (0, roof)])
         gable = trimesh.creation.extrude_polygon(profile, s)
         gable.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (1, 0, 0)))
         gable.apply_translation((0, s / 2, h))
-        fin = _box(0.003, s, 0.012, (0, 0, h + roof - 0.004))
-        return _union(_box(s, s, h), gable, fin)
+        fin = box(0.003, s, 0.012, (0, 0, h + roof - 0.004))
+        return union(box(s, s, h), gable, fin)
     return build
 
 
 def _mug(radius: tuple[float, float], height: tuple[float, float]):
     def build(rng: np.random.Generator) -> trimesh.Trimesh:
-        r, h = _u(rng, *radius), _u(rng, *height)
-        reach = _u(rng, 0.025, 0.035)  # how far the handle stands out of the body
+        r, h = uniform(rng, *radius), uniform(rng, *height)
+        reach = uniform(rng, 0.025, 0.035)  # how far the handle stands out of the body
         handle = trimesh.creation.torus(major_radius=h * 0.3, minor_radius=0.006,
-                                        major_sections=_SEGMENTS, minor_sections=12)
+                                        major_sections=SEGMENTS, minor_sections=12)
         handle.apply_scale((reach / (h * 0.3), 1.0, 1.0))
         handle.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (1, 0, 0)))
         handle.apply_translation((r, 0, h * 0.5))
-        inside = _cylinder(r - 0.004, h, (0, 0, 0.006))
-        return _minus(_union(_cylinder(r, h), handle), inside)
+        inside = cylinder(r - 0.004, h, (0, 0, 0.006))
+        return minus(union(cylinder(r, h), handle), inside)
     return build
 
 
 def _plate(rng: np.random.Generator) -> trimesh.Trimesh:
-    r, h = _u(rng, 0.11, 0.135), _u(rng, 0.032, 0.04)
-    well = trimesh.creation.cone(radius=r * 0.8, height=h * 4, sections=_SEGMENTS)
+    r, h = uniform(rng, 0.11, 0.135), uniform(rng, 0.032, 0.04)
+    well = trimesh.creation.cone(radius=r * 0.8, height=h * 4, sections=SEGMENTS)
     well.apply_transform(trimesh.transformations.rotation_matrix(math.pi, (1, 0, 0)))
     well.apply_translation((0, 0, h + h * 4 - 0.012))
-    return _minus(_cylinder(r, h), well)
+    return minus(cylinder(r, h), well)
 
 
 def _flange(rng: np.random.Generator) -> trimesh.Trimesh:
-    r, plate = _u(rng, 0.06, 0.08), _u(rng, 0.012, 0.018)
-    hub_r, hub = r * _u(rng, 0.4, 0.5), _u(rng, 0.03, 0.045)
-    holes = [_cylinder(0.006, plate + 0.01, (0.8 * r * math.cos(a), 0.8 * r * math.sin(a), -0.005))
+    r, plate = uniform(rng, 0.06, 0.08), uniform(rng, 0.012, 0.018)
+    hub_r, hub = r * uniform(rng, 0.4, 0.5), uniform(rng, 0.03, 0.045)
+    holes = [cylinder(0.006, plate + 0.01, (0.8 * r * math.cos(a), 0.8 * r * math.sin(a), -0.005))
              for a in np.arange(6) * math.pi / 3 + math.pi / 6]
-    solid = _union(_cylinder(r, plate), _cylinder(hub_r, plate + hub))
-    return _minus(solid, _cylinder(hub_r * 0.7, plate + hub + 0.01, (0, 0, -0.005)), *holes)
+    solid = union(cylinder(r, plate), cylinder(hub_r, plate + hub))
+    return minus(solid, cylinder(hub_r * 0.7, plate + hub + 0.01, (0, 0, -0.005)), *holes)
 
 
 def _l_shape(rng: np.random.Generator) -> trimesh.Trimesh:
-    length, width, arm, h = (_u(rng, 0.16, 0.22), _u(rng, 0.11, 0.16), _u(rng, 0.04, 0.06),
-                             _u(rng, 0.04, 0.08))
-    return _union(_box(length, arm, h, (0, -(width - arm) / 2, 0)),
-                  _box(arm, width, h, (-(length - arm) / 2, 0, 0)))
+    length, width, arm, h = (uniform(rng, 0.16, 0.22), uniform(rng, 0.11, 0.16),
+                             uniform(rng, 0.04, 0.06), uniform(rng, 0.04, 0.08))
+    return union(box(length, arm, h, (0, -(width - arm) / 2, 0)),
+                  box(arm, width, h, (-(length - arm) / 2, 0, 0)))
 
 
 def _bracket(rng: np.random.Generator) -> trimesh.Trimesh:
-    length, base, up, t = (_u(rng, 0.10, 0.16), _u(rng, 0.06, 0.10), _u(rng, 0.06, 0.10),
-                           _u(rng, 0.005, 0.008))
-    return _union(_box(length, base, t), _box(length, t, up, (0, (base - t) / 2, 0)))
+    length, base, up, t = (uniform(rng, 0.10, 0.16), uniform(rng, 0.06, 0.10),
+                           uniform(rng, 0.06, 0.10), uniform(rng, 0.005, 0.008))
+    return union(box(length, base, t), box(length, t, up, (0, (base - t) / 2, 0)))
 
 
 def _channel(rng: np.random.Generator) -> trimesh.Trimesh:
-    length, width, h, t = (_u(rng, 0.18, 0.24), _u(rng, 0.08, 0.11), _u(rng, 0.05, 0.07),
-                           _u(rng, 0.008, 0.012))
-    return _minus(_box(length, width, h), _box(length + 0.01, width - 2 * t, h, (0, 0, t)))
+    length, width, h, t = (uniform(rng, 0.18, 0.24), uniform(rng, 0.08, 0.11),
+                           uniform(rng, 0.05, 0.07), uniform(rng, 0.008, 0.012))
+    return minus(box(length, width, h), box(length + 0.01, width - 2 * t, h, (0, 0, t)))
 
 
 def _ring(outer: tuple[float, float], hole: float, height: tuple[float, float]):
     def build(rng: np.random.Generator) -> trimesh.Trimesh:
-        r, h = _u(rng, *outer), _u(rng, *height)
-        return _minus(_cylinder(r, h), _cylinder(r * hole, h + 0.01, (0, 0, -0.005)))
+        r, h = uniform(rng, *outer), uniform(rng, *height)
+        return minus(cylinder(r, h), cylinder(r * hole, h + 0.01, (0, 0, -0.005)))
     return build
 
 
 def _two_blocks(rng: np.random.Generator) -> trimesh.Trimesh:
-    a, b, gap = _u(rng, 0.07, 0.10), _u(rng, 0.05, 0.08), _u(rng, 0.02, 0.04)
-    h1, h2 = _u(rng, 0.06, 0.10), _u(rng, 0.04, 0.08)
+    a, b, gap = uniform(rng, 0.07, 0.10), uniform(rng, 0.05, 0.08), uniform(rng, 0.02, 0.04)
+    h1, h2 = uniform(rng, 0.06, 0.10), uniform(rng, 0.04, 0.08)
     x1, x2 = -(gap + b) / 2, (gap + a) / 2
-    bridge = _box(gap + 0.02, 0.015, 0.008, ((x1 + x2) / 2, 0, 0))
-    return _union(_box(a, a, h1, (x1, 0, 0)), _box(b, b, h2, (x2, 0, 0)), bridge)
+    bridge = box(gap + 0.02, 0.015, 0.008, ((x1 + x2) / 2, 0, 0))
+    return union(box(a, a, h1, (x1, 0, 0)), box(b, b, h2, (x2, 0, 0)), bridge)
 
 
 def _dumbbell(rng: np.random.Generator) -> trimesh.Trimesh:
-    r, disc, bar = _u(rng, 0.035, 0.05), _u(rng, 0.025, 0.04), _u(rng, 0.16, 0.24)
-    plates = [_lying(_cylinder(r, disc, (0, 0, x))) for x in (-bar / 2, bar / 2 - disc)]
-    rod = _lying(_cylinder(0.012, bar, (0, 0, -bar / 2)))
-    return _union(*plates, rod)
+    r, disc, bar = uniform(rng, 0.035, 0.05), uniform(rng, 0.025, 0.04), uniform(rng, 0.16, 0.24)
+    plates = [lying(cylinder(r, disc, (0, 0, x))) for x in (-bar / 2, bar / 2 - disc)]
+    rod = lying(cylinder(0.012, bar, (0, 0, -bar / 2)))
+    return union(*plates, rod)
 
 
 def _blob(parts: tuple[int, int], size: tuple[float, float]):
     """A soft irregular shape: a union of random ellipsoids, each centred inside an earlier
     one so that the union is one body."""
     def build(rng: np.random.Generator) -> trimesh.Trimesh:
-        scale = _u(rng, *size)
+        scale = uniform(rng, *size)
         centres, semis = [np.zeros(3)], [scale * rng.uniform(0.2, 0.35, 3)]
         for _ in range(int(rng.integers(parts[0], parts[1] + 1)) - 1):
             j = int(rng.integers(len(centres)))
             centres.append(centres[j] + rng.uniform(-0.8, 0.8, 3) * semis[j])
             semis.append(scale * rng.uniform(0.12, 0.28, 3))
-        return _union(*(_ellipsoid(*s, at=tuple(c)) for c, s in zip(centres, semis, strict=True)))
+        return union(*(ellipsoid(*s, at=tuple(c)) for c, s in zip(centres, semis, strict=True)))
     return build
 
 
-def _hull(*rings: np.ndarray) -> trimesh.Trimesh:
-    """The convex hull of (n, 3) rings of points: a prism, a frustum or a wedge."""
-    return trimesh.convex.convex_hull(np.concatenate(rings))
-
-
-def _polygon(radius: float, sides: int, z: float) -> np.ndarray:
-    """(sides, 3) a regular polygon of circumradius `radius` at height z."""
-    angles = 2 * np.pi * np.arange(sides) / sides
-    return np.column_stack([radius * np.cos(angles), radius * np.sin(angles),
-                            np.full(sides, z)])
-
-
 def _cone(rng: np.random.Generator) -> trimesh.Trimesh:
-    return trimesh.creation.cone(radius=_u(rng, 0.05, 0.07), height=_u(rng, 0.12, 0.18),
-                                 sections=_SEGMENTS)
+    return trimesh.creation.cone(radius=uniform(rng, 0.05, 0.07), height=uniform(rng, 0.12, 0.18),
+                                 sections=SEGMENTS)
 
 
 def _pyramid(rng: np.random.Generator) -> trimesh.Trimesh:
-    side, height = _u(rng, 0.12, 0.18), _u(rng, 0.08, 0.14)
-    return _hull(_polygon(side / math.sqrt(2), 4, 0.0), np.array([[0.0, 0.0, height]]))
+    side, height = uniform(rng, 0.12, 0.18), uniform(rng, 0.08, 0.14)
+    return hull(polygon(side / math.sqrt(2), 4, 0.0), np.array([[0.0, 0.0, height]]))
 
 
 def _bucket(rng: np.random.Generator) -> trimesh.Trimesh:
-    top, height = _u(rng, 0.06, 0.08), _u(rng, 0.12, 0.16)
-    return _hull(_polygon(top * _u(rng, 0.65, 0.8), _SEGMENTS, 0.0),
-                 _polygon(top, _SEGMENTS, height))
+    top, height = uniform(rng, 0.06, 0.08), uniform(rng, 0.12, 0.16)
+    return hull(polygon(top * uniform(rng, 0.65, 0.8), SEGMENTS, 0.0),
+                 polygon(top, SEGMENTS, height))
 
 
 def _wedge(rng: np.random.Generator) -> trimesh.Trimesh:
-    length, width, height = _u(rng, 0.15, 0.22), _u(rng, 0.08, 0.12), _u(rng, 0.06, 0.10)
+    length, width, height = (uniform(rng, 0.15, 0.22), uniform(rng, 0.08, 0.12),
+                             uniform(rng, 0.06, 0.10))
     base = np.array([[x, y, 0.0] for x in (-length / 2, length / 2)
                      for y in (-width / 2, width / 2)])
-    return _hull(base, np.array([[length / 2, y, height] for y in (-width / 2, width / 2)]))
+    return hull(base, np.array([[length / 2, y, height] for y in (-width / 2, width / 2)]))
 
 
 def _hex_prism(rng: np.random.Generator) -> trimesh.Trimesh:
-    radius, height = _u(rng, 0.04, 0.06) / math.cos(math.pi / 6), _u(rng, 0.04, 0.08)
-    return _hull(_polygon(radius, 6, 0.0), _polygon(radius, 6, height))
+    radius, height = uniform(rng, 0.04, 0.06) / math.cos(math.pi / 6), uniform(rng, 0.04, 0.08)
+    return hull(polygon(radius, 6, 0.0), polygon(radius, 6, height))
 
 
 def _bowl(rng: np.random.Generator) -> trimesh.Trimesh:
     """A bowl: the lower part of an ellipsoidal shell, open upward, on a foot ring."""
-    r, depth, wall = _u(rng, 0.06, 0.09), _u(rng, 0.5, 0.7), 0.004
-    shell = _minus(_ellipsoid(r, r, r * depth),
-                   _ellipsoid(r - wall, r - wall, r * depth - wall),
-                   _box(2.2 * r, 2.2 * r, r, (0, 0, 0)))
-    return _union(shell, _cylinder(0.4 * r, 0.012, (0, 0, -r * depth - 0.004)))
+    r, depth, wall = uniform(rng, 0.06, 0.09), uniform(rng, 0.5, 0.7), 0.004
+    shell = minus(ellipsoid(r, r, r * depth),
+                   ellipsoid(r - wall, r - wall, r * depth - wall),
+                   box(2.2 * r, 2.2 * r, r, (0, 0, 0)))
+    return union(shell, cylinder(0.4 * r, 0.012, (0, 0, -r * depth - 0.004)))
 
 
 def _vase(rng: np.random.Generator) -> trimesh.Trimesh:
     """A vase: a belly over its base, a waist and a flared lip, each stretch a frustum."""
-    r, h = _u(rng, 0.04, 0.055), _u(rng, 0.18, 0.26)
-    rings = [_polygon(r * _u(rng, 0.7, 0.8), _SEGMENTS, 0.0),
-             _polygon(r, _SEGMENTS, h * _u(rng, 0.3, 0.4)),
-             _polygon(r * _u(rng, 0.45, 0.6), _SEGMENTS, h * _u(rng, 0.7, 0.8)),
-             _polygon(r * _u(rng, 0.7, 0.85), _SEGMENTS, h)]
-    return _union(*(_hull(a, b) for a, b in itertools.pairwise(rings)))
+    r, h = uniform(rng, 0.04, 0.055), uniform(rng, 0.18, 0.26)
+    rings = [polygon(r * uniform(rng, 0.7, 0.8), SEGMENTS, 0.0),
+             polygon(r, SEGMENTS, h * uniform(rng, 0.3, 0.4)),
+             polygon(r * uniform(rng, 0.45, 0.6), SEGMENTS, h * uniform(rng, 0.7, 0.8)),
+             polygon(r * uniform(rng, 0.7, 0.85), SEGMENTS, h)]
+    return union(*(hull(a, b) for a, b in itertools.pairwise(rings)))
 
 
 def _prism_lying(rng: np.random.Generator) -> trimesh.Trimesh:
     """A triangular prism lying on a face, as a chocolate bar's pack."""
-    side, length = _u(rng, 0.04, 0.06), _u(rng, 0.18, 0.25)
+    side, length = uniform(rng, 0.04, 0.06), uniform(rng, 0.18, 0.25)
     profile = shapely.Polygon([(-side / 2, 0), (side / 2, 0), (0, side * math.sqrt(3) / 2)])
     mesh = trimesh.creation.extrude_polygon(profile, length)
     mesh.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (1, 0, 0)))
@@ -299,23 +255,23 @@ def _prism_lying(rng: np.random.Generator) -> trimesh.Trimesh:
 
 def _spool(rng: np.random.Generator) -> trimesh.Trimesh:
     """A spool standing: a hub between two discs, the upper one overhanging it."""
-    r, disc, height = _u(rng, 0.04, 0.06), _u(rng, 0.006, 0.01), _u(rng, 0.05, 0.09)
-    return _union(_cylinder(r, disc), _cylinder(r * _u(rng, 0.4, 0.6), height),
-                  _cylinder(r, disc, (0, 0, height - disc)))
+    r, disc, height = uniform(rng, 0.04, 0.06), uniform(rng, 0.006, 0.01), uniform(rng, 0.05, 0.09)
+    return union(cylinder(r, disc), cylinder(r * uniform(rng, 0.4, 0.6), height),
+                  cylinder(r, disc, (0, 0, height - disc)))
 
 
 def _dome(rng: np.random.Generator) -> trimesh.Trimesh:
     """Half an ellipsoid on its flat side (a computer mouse, a dome lid)."""
-    a = _u(rng, 0.05, 0.07)
-    return _minus(_ellipsoid(a, a * _u(rng, 0.6, 0.8), _u(rng, 0.03, 0.05)),
-                  _box(3 * a, 3 * a, a, (0, 0, -a)))
+    a = uniform(rng, 0.05, 0.07)
+    return minus(ellipsoid(a, a * uniform(rng, 0.6, 0.8), uniform(rng, 0.03, 0.05)),
+                  box(3 * a, 3 * a, a, (0, 0, -a)))
 
 
 def _torus(rng: np.random.Generator) -> trimesh.Trimesh:
     """A ring of round section lying flat (a swim ring, a seal)."""
-    return trimesh.creation.torus(major_radius=_u(rng, 0.05, 0.07),
-                                  minor_radius=_u(rng, 0.012, 0.02),
-                                  major_sections=_SEGMENTS, minor_sections=16)
+    return trimesh.creation.torus(major_radius=uniform(rng, 0.05, 0.07),
+                                  minor_radius=uniform(rng, 0.012, 0.02),
+                                  major_sections=SEGMENTS, minor_sections=16)
 
 
 def _flattened(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -325,15 +281,15 @@ def _flattened(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
 
 def _plush(rng: np.random.Generator) -> trimesh.Trimesh:
     """A seated plush toy: a body, a head, two arms, two legs and two ears."""
-    s = _u(rng, 0.14, 0.22)
-    body = _ellipsoid(0.28 * s, 0.22 * s, 0.32 * s, (0, 0, 0.32 * s))
-    head = _ellipsoid(0.22 * s, 0.2 * s, 0.2 * s, (0.02 * s, 0, 0.78 * s))
-    ears = [_ellipsoid(0.07 * s, 0.03 * s, 0.09 * s, (0, y * 0.14 * s, 0.98 * s)) for y in (-1, 1)]
-    arms = [_ellipsoid(0.09 * s, 0.2 * s, 0.08 * s, (0.05 * s, y * 0.3 * s, 0.42 * s))
+    s = uniform(rng, 0.14, 0.22)
+    body = ellipsoid(0.28 * s, 0.22 * s, 0.32 * s, (0, 0, 0.32 * s))
+    head = ellipsoid(0.22 * s, 0.2 * s, 0.2 * s, (0.02 * s, 0, 0.78 * s))
+    ears = [ellipsoid(0.07 * s, 0.03 * s, 0.09 * s, (0, y * 0.14 * s, 0.98 * s)) for y in (-1, 1)]
+    arms = [ellipsoid(0.09 * s, 0.2 * s, 0.08 * s, (0.05 * s, y * 0.3 * s, 0.42 * s))
             for y in (-1, 1)]
-    legs = [_ellipsoid(0.22 * s, 0.09 * s, 0.08 * s, (0.25 * s, y * 0.12 * s, 0.08 * s))
+    legs = [ellipsoid(0.22 * s, 0.09 * s, 0.08 * s, (0.25 * s, y * 0.12 * s, 0.08 * s))
             for y in (-1, 1)]
-    return _union(body, head, *ears, *arms, *legs)
+    return union(body, head, *ears, *arms, *legs)
 
 
 #: The family by name, in class order. Every shape has its own seed, so adding one changes
