@@ -14,11 +14,11 @@ from scipy.spatial.transform import Rotation
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation import forward
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator, misfit_limit
-from lrnbv_drake.core.estimation.fit import Problem
+from lrnbv_drake.core.estimation.fit import Problem, _stacked
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.interval import intervals, profile, slice_bounds
 from lrnbv_drake.core.estimation.params import EstimationParams
-from lrnbv_drake.core.estimation.shape import ROUNDINGS, Shape, box_shape, moved
+from lrnbv_drake.core.estimation.shape import ROUNDINGS, TAPER, Shape, box_shape, moved
 from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 from lrnbv_drake.station.parts import sensor_behaviour
@@ -105,6 +105,27 @@ def test_a_tapered_part_is_met_where_its_mesh_is(rounding, taper):
     both = np.isfinite(depth) & np.isfinite(truth)
     assert both.sum() > 300 and np.sum(np.isfinite(depth) != np.isfinite(truth)) <= 10
     np.testing.assert_allclose(depth[both], truth[both], atol=2e-4)
+
+
+def test_a_cone_stepped_once_is_a_disc_and_a_hub():
+    """A tapered cylinder 20 cm across and 5 cm tall narrowing by 0.8 (a flange's shape as
+    a taper draws it) stepped (`fit._stacked`): a disc of its section at 1.25 cm up,
+    20 (1 - 0.2) = 16 cm across and 2.5 cm tall, and a hub of its section at 3.75 cm up,
+    20 (1 - 0.6) = 8 cm across and 5 cm tall, neither tapered, both rounded. A vertical
+    ray from 50 cm up meets the hub's top at 3.5 cm from the axis (45 cm), the disc's at
+    6 cm (47.5 cm) and the table at 9 cm."""
+    cone = Shape(np.array([[0, 0, 0, 0.2, 0.2, 0.05, 1, 1, 0, 0.8]]), (True,), (True,),
+                 (True,))
+    dut = _stacked(cone, 0)
+    assert dut.solid == (True, True) and dut.rounded == (True, True)
+    assert dut.tapered == (False, False) and not np.any(dut.parts[:, TAPER])
+    np.testing.assert_allclose(dut.parts[:, 3:6], [[0.16, 0.16, 0.025], [0.08, 0.08, 0.05]])
+    for x, expected in ((0.035, 0.45), (0.06, 0.475), (0.09, 0.5)):
+        rays = _rays([x, 0, 0.5], [[0, 0, -1.0]])
+        base = forward.table_depths(rays.origins, rays.directions, 0.0, EXTENT)
+        depth = forward.shape_depths(rays.origins, rays.directions, rays.planes, dut.parts,
+                                     np.array(dut.solid), base, 0.0, forward.NO_CLIP)
+        assert depth[0, 0] == pytest.approx(expected), x
 
 
 def test_a_shape_of_parts_of_another_width_is_refused():

@@ -347,6 +347,20 @@ def _halves(shape: Shape, k: int, axis: int) -> Shape:
             .added(moved(x, 2 * axis, -size / 2), True))
 
 
+def _stacked(shape: Shape, k: int) -> Shape:
+    """Solid part k, tapered narrowing upward, as two untapered parts standing on the table:
+    the lower half of its height with its section at a quarter of the height, and the whole
+    height with its section at three quarters (a frustum stepped once: a flange's plate and
+    hub, which a taper draws with a skirt)."""
+    x = shape.parts[k]
+    lower, upper = np.r_[x[:9], 0.0], np.r_[x[:9], 0.0]
+    lower[3:5] *= 1.0 - x[TAPER] / 4
+    lower[5] /= 2
+    upper[3:5] *= 1.0 - 3 * x[TAPER] / 4
+    return (shape.without(k).added(lower, True, shape.rounded[k])
+            .added(upper, True, shape.rounded[k]))
+
+
 @dc.dataclass(frozen=True)
 class Move:
     """A change of the shape's structure the readings may ask for: `kind` "class" (part k
@@ -373,7 +387,8 @@ def moves(problem: Problem, fit: Fit, max_parts: int) -> list[Move]:
     outlier = _outliers(problem, fit)
     shape, found = fit.shape, []
     if len(shape.solid) < max_parts:
-        # A tapered solid takes no second one (`classings`); a hole it may.
+        # A tapered solid takes no second one (`classings`), a hole it may; its class move
+        # steps it into two (`_stacked`).
         for kind in ("hole",) if any(shape.tapered) else ("solid", "hole"):
             part, asking = _proposed(problem, fit, kind == "solid")
             if part is not None:
@@ -394,6 +409,10 @@ def _tried(problem: Problem, fit: Fit, move: Move, max_parts: int) -> list[Fit]:
             out += [problem.refine(problem.evaluate(_halves(shape, move.k, axis)),
                                    shape.parts[move.k][3 + axis] / 4, max_sweeps=1)
                     for axis in (0, 1)]
+            # A tapered solid takes no second part (`moves`); stepped, it leaves the taper.
+            if shape.tapered[move.k] and shape.parts[move.k][TAPER] > 0:
+                out.append(problem.refine(problem.evaluate(_stacked(shape, move.k)),
+                                          shape.parts[move.k][3:5].max() / 4, max_sweeps=1))
         return out
     grown = problem.evaluate(shape.added(move.part, move.kind == "solid"))
     return [_classed(problem, grown, n, max(0.02, move.part[3:5].max() / 2))]

@@ -64,9 +64,9 @@ class Shape:
             tapers[k] = tapered
         return dc.replace(self, parts=parts, rounded=tuple(flags), tapered=tuple(tapers))
 
-    def added(self, x: np.ndarray, solid: bool) -> Shape:
+    def added(self, x: np.ndarray, solid: bool, rounded: bool = False) -> Shape:
         return dc.replace(self, parts=np.vstack([self.parts, x]),
-                          rounded=(*self.rounded, False), solid=(*self.solid, solid),
+                          rounded=(*self.rounded, rounded), solid=(*self.solid, solid),
                           tapered=(*self.tapered, False))
 
     def without(self, k: int) -> Shape:
