@@ -358,9 +358,7 @@ def _cell_like(truth: OrientedBox) -> OrientedBox:
     ("l_shape", 6.0, "2 parts"),
 ])
 def test_each_class_is_recovered_from_a_handful_of_views(name, bound_mm, shape):
-    # The taper is an option (record 0039): on for the shape that needs it.
-    taper = ", estimation: {taper: true}" if shape == "tapered" else ""
-    estimate, true_dims = _estimate(f"{{object: {{name: {name}}}{taper}}}")
+    estimate, true_dims = _estimate(f"{{object: {{name: {name}}}}}")
     errors = 1000 * (estimate.box.dims - true_dims)
     assert np.all(np.abs(errors) <= bound_mm), errors
     assert estimate.shape.name().startswith(shape)

@@ -31,6 +31,6 @@ class EstimationParams:
     # shape it has (`fit.Problem`): about 25 s on one core, so that a shape the model
     # cannot draw does not hold the cell for minutes a pose.
     search_casts: float = 5e8
-    # Whether the shape's one solid may taper (a cone, a pyramid, a bucket; record 0039).
-    # Off: on the paper flange a tapered solid drew a skirt 4 cm beyond its plate.
-    taper: bool = False
+    # Whether the shape's one solid may taper (a cone, a pyramid, a bucket, a cup; records
+    # 0039 and 0040).
+    taper: bool = True
