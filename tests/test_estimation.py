@@ -14,11 +14,18 @@ from scipy.spatial.transform import Rotation
 from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation import forward
 from lrnbv_drake.core.estimation.estimator import BoxEstimate, ShapeEstimator, misfit_limit
-from lrnbv_drake.core.estimation.fit import Problem, _stacked
+from lrnbv_drake.core.estimation.fit import Problem
 from lrnbv_drake.core.estimation.forward import ReadingRule, ZoneRays, zone_rays
 from lrnbv_drake.core.estimation.interval import intervals, profile, slice_bounds
 from lrnbv_drake.core.estimation.params import EstimationParams
-from lrnbv_drake.core.estimation.shape import ROUNDINGS, TAPER, Shape, box_shape, moved
+from lrnbv_drake.core.estimation.shape import (
+    ROUNDINGS,
+    TAPER,
+    Shape,
+    box_shape,
+    moved,
+    stepped,
+)
 from lrnbv_drake.core.sensing.sensor import SensorModelParams, ToFFrame
 from lrnbv_drake.core.sensing.tof_device import DeviceBehaviour
 from lrnbv_drake.station.parts import sensor_behaviour
@@ -109,14 +116,14 @@ def test_a_tapered_part_is_met_where_its_mesh_is(rounding, taper):
 
 def test_a_cone_stepped_once_is_a_disc_and_a_hub():
     """A tapered cylinder 20 cm across and 5 cm tall narrowing by 0.8 (a flange's shape as
-    a taper draws it) stepped (`fit._stacked`): a disc of its section at 1.25 cm up,
+    a taper draws it) stepped (`shape.stepped`): a disc of its section at 1.25 cm up,
     20 (1 - 0.2) = 16 cm across and 2.5 cm tall, and a hub of its section at 3.75 cm up,
     20 (1 - 0.6) = 8 cm across and 5 cm tall, neither tapered, both rounded. A vertical
     ray from 50 cm up meets the hub's top at 3.5 cm from the axis (45 cm), the disc's at
     6 cm (47.5 cm) and the table at 9 cm."""
     cone = Shape(np.array([[0, 0, 0, 0.2, 0.2, 0.05, 1, 1, 0, 0.8]]), (True,), (True,),
                  (True,))
-    dut = _stacked(cone, 0)
+    dut = stepped(cone, 0)
     assert dut.solid == (True, True) and dut.rounded == (True, True)
     assert dut.tapered == (False, False) and not np.any(dut.parts[:, TAPER])
     np.testing.assert_allclose(dut.parts[:, 3:6], [[0.16, 0.16, 0.025], [0.08, 0.08, 0.05]])

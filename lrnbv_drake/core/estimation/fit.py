@@ -37,7 +37,9 @@ from lrnbv_drake.core.estimation.shape import (
     YAW,
     Shape,
     box_shape,
+    halves,
     moved,
+    stepped,
 )
 
 #: A zone the shape does not explain: its residual beyond this many sigmas (a chance of
@@ -339,28 +341,6 @@ def _proposed(problem: Problem, fit: Fit, solid: bool) -> tuple[np.ndarray | Non
                      0, 0, 0, 0]), len(points)
 
 
-def _halves(shape: Shape, k: int, axis: int) -> Shape:
-    """Solid part k cut across its side `axis` (0: length, 1: width) into two boxes."""
-    x = np.r_[shape.parts[k][:6], 0, 0, 0, 0]
-    size = x[3 + axis]
-    return (shape.without(k).added(moved(x, 2 * axis + 1, -size / 2), True)
-            .added(moved(x, 2 * axis, -size / 2), True))
-
-
-def _stacked(shape: Shape, k: int) -> Shape:
-    """Solid part k, tapered narrowing upward, as two untapered parts standing on the table:
-    the lower half of its height with its section at a quarter of the height, and the whole
-    height with its section at three quarters (a frustum stepped once: a flange's plate and
-    hub, which a taper draws with a skirt)."""
-    x = shape.parts[k]
-    lower, upper = np.r_[x[:9], 0.0], np.r_[x[:9], 0.0]
-    lower[3:5] *= 1.0 - x[TAPER] / 4
-    lower[5] /= 2
-    upper[3:5] *= 1.0 - 3 * x[TAPER] / 4
-    return (shape.without(k).added(lower, True, shape.rounded[k])
-            .added(upper, True, shape.rounded[k]))
-
-
 @dc.dataclass(frozen=True)
 class Move:
     """A change of the shape's structure the readings may ask for: `kind` "class" (part k
@@ -388,7 +368,7 @@ def moves(problem: Problem, fit: Fit, max_parts: int) -> list[Move]:
     shape, found = fit.shape, []
     if len(shape.solid) < max_parts:
         # A tapered solid takes no second one (`classings`), a hole it may; its class move
-        # steps it into two (`_stacked`).
+        # steps it into two (`shape.stepped`).
         for kind in ("hole",) if any(shape.tapered) else ("solid", "hole"):
             part, asking = _proposed(problem, fit, kind == "solid")
             if part is not None:
@@ -406,12 +386,12 @@ def _tried(problem: Problem, fit: Fit, move: Move, max_parts: int) -> list[Fit]:
     if move.kind == "class":
         out = [_classed(problem, fit, move.k, 0.01)]
         if shape.solid[move.k] and n < max_parts:
-            out += [problem.refine(problem.evaluate(_halves(shape, move.k, axis)),
+            out += [problem.refine(problem.evaluate(halves(shape, move.k, axis)),
                                    shape.parts[move.k][3 + axis] / 4, max_sweeps=1)
                     for axis in (0, 1)]
             # A tapered solid takes no second part (`moves`); stepped, it leaves the taper.
             if shape.tapered[move.k] and shape.parts[move.k][TAPER] > 0:
-                out.append(problem.refine(problem.evaluate(_stacked(shape, move.k)),
+                out.append(problem.refine(problem.evaluate(stepped(shape, move.k)),
                                           shape.parts[move.k][3:5].max() / 4, max_sweeps=1))
         return out
     grown = problem.evaluate(shape.added(move.part, move.kind == "solid"))

@@ -1,6 +1,6 @@
 """The fitted shape: solid parts minus holes, each a box standing on the table with a
-quadric rounding and a taper (`forward` module doc), and the moves of one coordinate the
-search makes."""
+quadric rounding and a taper (`forward` module doc), the moves of one coordinate the
+search makes, and the cuts of a part into two that its structure moves make."""
 
 from __future__ import annotations
 
@@ -160,3 +160,25 @@ def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
     else:
         y[coordinate] = min(max(value, 0.0), 1.0)
     return y
+
+
+def halves(shape: Shape, k: int, axis: int) -> Shape:
+    """Solid part k cut across its side `axis` (0: length, 1: width) into two boxes."""
+    x = np.r_[shape.parts[k][:6], 0, 0, 0, 0]
+    size = x[3 + axis]
+    return (shape.without(k).added(moved(x, 2 * axis + 1, -size / 2), True)
+            .added(moved(x, 2 * axis, -size / 2), True))
+
+
+def stepped(shape: Shape, k: int) -> Shape:
+    """Solid part k, tapered narrowing upward, as two untapered parts standing on the table:
+    the lower half of its height with its section at a quarter of the height, and the whole
+    height with its section at three quarters (a frustum stepped once: a flange's plate and
+    hub, which a taper draws with a skirt)."""
+    x = shape.parts[k]
+    lower, upper = np.r_[x[:9], 0.0], np.r_[x[:9], 0.0]
+    lower[3:5] *= 1.0 - x[TAPER] / 4
+    lower[5] /= 2
+    upper[3:5] *= 1.0 - 3 * x[TAPER] / 4
+    return (shape.without(k).added(lower, True, shape.rounded[k])
+            .added(upper, True, shape.rounded[k]))
