@@ -53,6 +53,11 @@ def union(*parts: trimesh.Trimesh) -> trimesh.Trimesh:
     return trimesh.boolean.union(list(parts), engine="manifold")
 
 
+def common(*parts: trimesh.Trimesh) -> trimesh.Trimesh:
+    """What every one of `parts` holds."""
+    return trimesh.boolean.intersection(list(parts), engine="manifold")
+
+
 def minus(mesh: trimesh.Trimesh, *cut: trimesh.Trimesh) -> trimesh.Trimesh:
     return trimesh.boolean.difference([mesh, *cut], engine="manifold")
 
