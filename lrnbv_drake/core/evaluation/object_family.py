@@ -276,8 +276,8 @@ def _torus(rng: np.random.Generator) -> trimesh.Trimesh:
 
 
 def _pouch(rng: np.random.Generator) -> trimesh.Trimesh:
-    """A filled pouch lying flat (a bag of rice, a pillow pack): a flat ellipsoid cut to a
-    rectangle, so that its sides bulge up from square-cut edges."""
+    """A filled pouch lying flat (a bag of rice, a pillow pack): a flat ellipsoid cut by a
+    box, so that flat sides meet at rounded corners under a bulging top."""
     length, width, thick = (uniform(rng, 0.15, 0.22), uniform(rng, 0.10, 0.15),
                             uniform(rng, 0.03, 0.05))
     return common(ellipsoid(0.62 * length, 0.62 * width, thick / 2, (0, 0, thick / 2)),
@@ -448,7 +448,7 @@ _add("horseshoe", "ring", "half a torus lying flat, 12-17 cm across, 2-3.2 cm th
      _horseshoe, HELD_OUT)
 _add("pear", "pear", "a pear standing: a round body 7-9 cm across and a smaller top",
      _pear, HELD_OUT)
-_add("cone_lying", "taper", "a cone lying on its side, 6-9 cm across, 15-22 cm long",
+_add("cone_lying", "taper", "a cone lying on its side, 6-9 cm across, 15-22.5 cm long",
      _cone_lying, HELD_OUT)
 _add("lidded_box", "box", "a shoe box, 26-33 x 17-21 x 10-13 cm, its lid overhanging by "
      "3-6 mm", _lidded_box, HELD_OUT)
