@@ -1,0 +1,112 @@
+"""How far the structure search's fit of a recorded episode is from the best the shape model
+can do on the same readings (records 0031, 0041), for the objects whose true structure the
+model draws: the paper flange, the pouch and the three balls.
+
+In the shape model's terms the paper flange (models/objects/generate_objects.py) is a plate
+(an upright cylinder 200 mm across, 20 mm high), a hub (an upright cylinder, here the 99.5
+mm mean of its 110-88.9 mm taper, 50 mm high) and a bore (a cylindrical hole 82.5 mm
+across), all on the object's centre; the pouch (`object_family`) one part, its true box
+with the rounding (0.5 / 0.62)^2 across and 1 up (an ellipsoid 1.24 times its box's sides
+across, cut by the box); the balls three spheres of the true height, on the centres of the
+mesh's three clusters of vertices. For each episode the estimate is refitted from its
+frames as the episode made it (`lrnbv refit`'s), then the fit and that structure, refined
+from the drawing by the estimator's own coordinate search, are scored on the same zones
+(the estimator's problem around the true box: every valid zone whose sub-rays pass within
+`estimation.margin` of it, its parts kept within the region they span) by the estimator's
+information criterion: a structure that scores lower and whose box is nearer the truth is
+one the search did not find. Beside them: the best re-class of a part of the fit (the class
+move's re-class alone, without its cuts and last polish), and the fit with every part an
+upright cylinder at once, refined.
+
+    .venv/bin/python benchmarks/search_gap.py out/results/paper/runs/lrnbv__flange__* \
+        out/results/held_out/runs/lrnbv__{pouch,balls}__*
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import scipy.cluster.vq
+
+from lrnbv_drake.core.boxes import OrientedBox
+from lrnbv_drake.core.estimation.fit import classings
+from lrnbv_drake.core.estimation.shape import HOLE_HEIGHT, ROUNDINGS, Shape
+from lrnbv_drake.core.evaluation.objects import load_object_mesh
+from lrnbv_drake.experiments.refit import load_episode
+from lrnbv_drake.station.parts import episode_estimator
+
+UPRIGHT_CYLINDER = ROUNDINGS[0]
+#: (diameter, height, solid) of the plate, the hub and the bore, metres.
+FLANGE = ((0.200, 0.020, True), (0.0995, 0.050, True), (0.0825, HOLE_HEIGHT, False))
+
+
+def flange_shape(true: OrientedBox) -> Shape:
+    """The flange's structure (`FLANGE`) standing on the table at the true box's centre."""
+    parts = np.array([[*true.center[:2], 0.0, d, d, h, *UPRIGHT_CYLINDER, 0.0]
+                      for d, h, _ in FLANGE])
+    return Shape(parts, (True,) * len(FLANGE), tuple(s for *_, s in FLANGE))
+
+
+def pouch_shape(true: OrientedBox) -> Shape:
+    """The pouch: its true box cut by the ellipsoid 1.24 times its sides across."""
+    across = (0.5 / 0.62) ** 2
+    return Shape(np.array([[*true.center[:2], true.yaw, *true.dims, across, across, 1.0, 0.0]]),
+                 (True,), (True,))
+
+
+def balls_shape(true: OrientedBox) -> Shape:
+    """The three balls: spheres of the true height on the mesh's three clusters of
+    vertices, turned and moved as the true box is."""
+    centres, _ = scipy.cluster.vq.kmeans2(load_object_mesh("balls").vertices[:, :2], 3,
+                                          seed=0, minit="++")
+    c, s = np.cos(true.yaw), np.sin(true.yaw)
+    world = true.center[:2] + centres @ np.array([[c, s], [-s, c]])
+    d = true.dims[2]
+    parts = np.array([[x, y, 0.0, d, d, d, 1.0, 1.0, 1.0, 0.0] for x, y in world])
+    return Shape(parts, (True,) * 3, (True,) * 3)
+
+
+#: The true structure by object name.
+STRUCTURES = {"flange": flange_shape, "pouch": pouch_shape, "balls": balls_shape}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folders", nargs="+", type=Path)
+    args = parser.parse_args()
+    for folder in args.folders:
+        episode = load_episode(folder)
+        scenario, true = episode.scenario, episode.true
+        tracked = episode_estimator(scenario)
+        fitted = tracked.update(episode.readings, episode.cell_boxes, final=True).latest
+        table = scenario.cell.table_height
+        # The same estimator's problem around the true box: its zones and the region its
+        # parts must stay in.
+        problem = tracked._estimator._problem([true])
+        fit = problem.evaluate(fitted.shape)
+        name = episode.scenario.object.name
+        if name not in STRUCTURES:
+            raise SystemExit(f"{folder}: object {name!r}; expected one of {sorted(STRUCTURES)}")
+        drawn = problem.refine(problem.evaluate(STRUCTURES[name](true)), 0.006)
+        # The class move's re-class of each part of the fit alone, and every part made an
+        # upright cylinder of its footprint at once.
+        single = min(problem.score(f) for k in range(len(fit.shape.solid))
+                     for f in classings(problem, fit, k, 0.01))
+        round_all = fit.shape
+        for k, x in enumerate(fit.shape.parts):
+            round_all = round_all.with_part(k, np.r_[x[:6], UPRIGHT_CYLINDER, 0.0], rounded=True,
+                                            tapered=False)
+        round_all = problem.refine(problem.evaluate(round_all), 0.006)
+        print(f"{folder.name}: {len(problem)} zones; the search's fit ({fitted.shape.name()}) "
+              f"criterion {problem.score(fit):.1f}, worst error "
+              f"{1000 * np.abs(fitted.box.dims - true.dims).max():.1f} mm; its best single "
+              f"re-class {single:.1f}; every part round {problem.score(round_all):.1f}; the "
+              f"drawing's structure refined {problem.score(drawn):.1f}, worst error "
+              f"{1000 * np.abs(drawn.shape.box(table).dims - true.dims).max():.1f} mm",
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()
