@@ -1,5 +1,5 @@
 """Closed solids built from trimesh primitives and booleans (manifold3d), each standing on
-z = 0 unless placed: the building blocks of the generated shapes (`object_family`)."""
+z = 0 unless placed: the building blocks of the generated shapes (`shape_classes`)."""
 
 from __future__ import annotations
 
