@@ -35,6 +35,7 @@ from lrnbv_drake.core.boxes import OrientedBox
 from lrnbv_drake.core.estimation.fit import classings
 from lrnbv_drake.core.estimation.shape import HOLE_HEIGHT, ROUNDINGS, Shape
 from lrnbv_drake.core.evaluation.objects import load_object_mesh
+from lrnbv_drake.core.evaluation.shape_classes import POUCH_BULGE
 from lrnbv_drake.experiments.refit import load_episode
 from lrnbv_drake.station.parts import episode_estimator
 
@@ -51,8 +52,8 @@ def flange_shape(true: OrientedBox) -> Shape:
 
 
 def pouch_shape(true: OrientedBox) -> Shape:
-    """The pouch: its true box cut by the ellipsoid 1.24 times its sides across."""
-    across = (0.5 / 0.62) ** 2
+    """The pouch: its true box cut by its ellipsoid (`POUCH_BULGE` of its sides across)."""
+    across = (0.5 / POUCH_BULGE) ** 2
     return Shape(np.array([[*true.center[:2], true.yaw, *true.dims, across, across, 1.0, 0.0]]),
                  (True,), (True,))
 
@@ -96,6 +97,9 @@ def main() -> None:
     for folder in args.folders:
         episode = load_episode(folder)
         scenario, true = episode.scenario, episode.true
+        name = scenario.object.name
+        if name not in STRUCTURES:
+            raise SystemExit(f"{folder}: object {name!r}; expected one of {sorted(STRUCTURES)}")
         tracked = episode_estimator(scenario)
         fitted = tracked.update(episode.readings, episode.cell_boxes, final=True).latest
         table = scenario.cell.table_height
@@ -103,9 +107,6 @@ def main() -> None:
         # parts must stay in.
         problem = tracked._estimator._problem([true])
         fit = problem.evaluate(fitted.shape)
-        name = episode.scenario.object.name
-        if name not in STRUCTURES:
-            raise SystemExit(f"{folder}: object {name!r}; expected one of {sorted(STRUCTURES)}")
         drawn = problem.refine(problem.evaluate(STRUCTURES[name](true)), 0.006)
         # The class move's re-class of each part of the fit alone, and every part made an
         # upright cylinder of its footprint at once.

@@ -250,12 +250,18 @@ def torus(rng: np.random.Generator) -> trimesh.Trimesh:
                                   major_sections=SEGMENTS, minor_sections=16)
 
 
+#: The pouch's ellipsoid's semi-axes across, in its box's sides: past a half, so that the
+#: box cuts flat sides into it.
+POUCH_BULGE = 0.62
+
+
 def pouch(rng: np.random.Generator) -> trimesh.Trimesh:
     """A filled pouch lying flat (a bag of rice, a pillow pack): a flat ellipsoid cut by a
     box, so that flat sides meet at rounded corners under a bulging top."""
     length, width, thick = (uniform(rng, 0.15, 0.22), uniform(rng, 0.10, 0.15),
                             uniform(rng, 0.03, 0.05))
-    return common(ellipsoid(0.62 * length, 0.62 * width, thick / 2, (0, 0, thick / 2)),
+    return common(ellipsoid(POUCH_BULGE * length, POUCH_BULGE * width, thick / 2,
+                            (0, 0, thick / 2)),
                   box(length, width, thick))
 
 
