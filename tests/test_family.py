@@ -113,6 +113,54 @@ def test_a_shoe_box_lid_overhangs_its_body_by_3_to_6_mm_a_side():
     assert over[1] == pytest.approx(over[0], abs=1e-6) and 0.003 <= over[0] <= 0.006
 
 
+def test_a_six_pack_is_two_rows_of_three_cans():
+    """Cans of radius r at 1.96 r centre to centre (48-gons, a vertex on each axis): 2 r +
+    2 x 1.96 r = 5.92 r long and 3.96 r wide."""
+    mesh = objects.load_object_mesh("six_pack")
+    r = mesh.extents[1] / 3.96
+    assert 0.031 <= r <= 0.034 and mesh.extents[0] == pytest.approx(5.92 * r, rel=1e-6)
+
+
+def test_a_star_has_the_area_of_its_ten_triangles():
+    """A five-pointed star of tips at R and notches at r from its centre: ten triangles of
+    area R r sin(pi / 5) / 2, times its thickness."""
+    mesh = objects.load_object_mesh("star_prism")
+    top = mesh.vertices[np.isclose(mesh.vertices[:, 2], mesh.extents[2])]
+    radii = np.linalg.norm(top[:, :2] - top[:, :2].mean(axis=0), axis=1)
+    assert len(top) == 10
+    area = 5 * radii.max() * radii.min() * math.sin(math.pi / 5)
+    assert mesh.volume == pytest.approx(area * mesh.extents[2], rel=1e-6)
+
+
+def test_a_pipe_is_open_along_its_axis_and_its_wall_is_3_to_5_mm():
+    mesh = objects.load_object_mesh("pipe_lying")
+    radius = mesh.extents[2] / 2
+    along = mesh.ray.intersects_any([[-1.0, 0.0, radius]], [[1.0, 0.0, 0.0]])
+    hits, _, _ = mesh.ray.intersects_location([[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]])
+    z = np.sort(hits[:, 2])[::-1]
+    assert not along[0] and len(z) == 4
+    assert z[0] == pytest.approx(2 * radius) and 0.003 <= z[0] - z[1] <= 0.005
+
+
+def test_a_gear_has_16_to_24_teeth_round_a_bore():
+    mesh = objects.load_object_mesh("gear")
+    top = mesh.vertices[np.isclose(mesh.vertices[:, 2], mesh.extents[2])]
+    radii = np.linalg.norm(top[:, :2] - mesh.centroid[:2], axis=1)
+    tips = np.isclose(radii, radii.max(), atol=1e-6).sum()
+    assert tips % 2 == 0 and 16 <= tips // 2 <= 24
+    assert not mesh.ray.intersects_any([[*mesh.centroid[:2], 1.0]], [[0.0, 0.0, -1.0]])[0]
+
+
+def test_a_stepped_box_carries_a_smaller_box_off_its_centre():
+    mesh = objects.load_object_mesh("stepped_box")
+    z = mesh.vertices[:, 2]
+    upper = mesh.vertices[np.isclose(z, mesh.extents[2]), :2]
+    lower = mesh.vertices[z < 1e-9, :2]
+    assert np.all(upper.min(axis=0) >= lower.min(axis=0) - 1e-9)
+    assert np.all(upper.max(axis=0) <= lower.max(axis=0) + 1e-9)
+    assert np.linalg.norm(upper.mean(axis=0) - lower.mean(axis=0)) > 0.005
+
+
 def test_the_bucket_widens_from_its_base_to_its_top():
     mesh = objects.load_object_mesh("bucket")
     z = mesh.vertices[:, 2]

@@ -301,13 +301,81 @@ def lidded_box(rng: np.random.Generator) -> trimesh.Trimesh:
                  box(length + 2 * over, width + 2 * over, lid, (0, 0, height - lid)))
 
 
+#: Centre spacing of touching round parts in their radius: a little less than touching,
+#: so that they are one body.
+TOUCHING = 1.96
+
+
 def balls(rng: np.random.Generator) -> trimesh.Trimesh:
     """Three balls touching in a triangle (oranges in a net, a pack of tennis balls)."""
     r = uniform(rng, 0.03, 0.036)
-    side = 1.96 * r  # a little less than touching, so that the balls are one body
+    side = TOUCHING * r
     centres = side / math.sqrt(3) * np.array(
         [[math.cos(a), math.sin(a)] for a in (0, 2 * math.pi / 3, 4 * math.pi / 3)])
     return union(*(ellipsoid(r, r, r, (x, y, r)) for x, y in centres))
+
+
+def six_pack(rng: np.random.Generator) -> trimesh.Trimesh:
+    """Six cans in two rows of three (a drinks pack)."""
+    r, h = uniform(rng, 0.031, 0.034), uniform(rng, 0.11, 0.123)
+    return union(*(cylinder(r, h, (TOUCHING * r * i, TOUCHING * r * j, 0))
+                   for i in range(3) for j in range(2)))
+
+
+def pipe_lying(rng: np.random.Generator) -> trimesh.Trimesh:
+    """A pipe lying (a tube, a cardboard core): a hollow cylinder on its side."""
+    outer, wall, length = (uniform(rng, 0.025, 0.04), uniform(rng, 0.003, 0.005),
+                           uniform(rng, 0.20, 0.30))
+    return lying(minus(cylinder(outer, length),
+                       cylinder(outer - wall, length + 0.01, (0, 0, -0.005))))
+
+
+def hammer(rng: np.random.Generator) -> trimesh.Trimesh:
+    """A hammer lying flat: a round handle resting on the table and a block head across its
+    end, taller than the handle is thick."""
+    radius, length = uniform(rng, 0.012, 0.016), uniform(rng, 0.25, 0.32)
+    along, across, tall = (uniform(rng, 0.025, 0.035), uniform(rng, 0.10, 0.13),
+                           uniform(rng, 0.034, 0.04))
+    handle = lying(cylinder(radius, length))
+    handle.apply_translation((0, 0, radius))
+    return union(handle, box(along, across, tall, (length - along / 2, 0, 0)))
+
+
+def stepped_box(rng: np.random.Generator) -> trimesh.Trimesh:
+    """Two boxes stacked, the upper smaller and off the lower's centre (a box on a box)."""
+    length, width, low = (uniform(rng, 0.18, 0.25), uniform(rng, 0.12, 0.16),
+                          uniform(rng, 0.05, 0.08))
+    top = np.array([length * uniform(rng, 0.5, 0.75), width * uniform(rng, 0.5, 0.75)])
+    shift = (np.array([length, width]) - top) / 2 * rng.uniform(0.4, 1.0, 2)
+    return union(box(length, width, low),
+                 box(*top, uniform(rng, 0.04, 0.07), (*shift, low - 0.001)))
+
+
+def star(points: int, outer: float, inner: float) -> shapely.Polygon:
+    """A star of `points` tips at radius `outer`, its notches at `inner`."""
+    angles = np.pi * np.arange(2 * points) / points
+    radii = np.where(np.arange(2 * points) % 2 == 0, outer, inner)
+    return shapely.Polygon(np.c_[radii * np.cos(angles), radii * np.sin(angles)])
+
+
+def star_prism(rng: np.random.Generator) -> trimesh.Trimesh:
+    """A five-pointed star lying flat (a cookie cutter, a badge): a footprint of notches."""
+    outer = uniform(rng, 0.05, 0.07)
+    return trimesh.creation.extrude_polygon(star(5, outer, outer * uniform(rng, 0.45, 0.55)),
+                                            uniform(rng, 0.02, 0.04))
+
+
+def gear(rng: np.random.Generator) -> trimesh.Trimesh:
+    """A spur gear lying flat, its bore through it (a machined part): 16-24 teeth."""
+    outer, depth = uniform(rng, 0.06, 0.08), uniform(rng, 0.006, 0.01)
+    teeth = int(rng.integers(16, 25))
+    # Each tooth a trapezoid: its flanks' feet at the root, its top half as wide.
+    angles = 2 * np.pi / teeth * (np.arange(teeth)[:, None] + np.array([0, 0.15, 0.35, 0.5]))
+    radii = np.array([outer - depth, outer, outer, outer - depth])
+    profile = shapely.Polygon(np.c_[(radii * np.cos(angles)).ravel(),
+                                    (radii * np.sin(angles)).ravel()])
+    bore = shapely.Point(0, 0).buffer(outer * uniform(rng, 0.2, 0.3), quad_segs=SEGMENTS // 4)
+    return trimesh.creation.extrude_polygon(profile.difference(bore), uniform(rng, 0.015, 0.03))
 
 
 def flattened(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
