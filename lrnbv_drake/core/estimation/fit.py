@@ -28,7 +28,6 @@ import scipy.cluster.hierarchy
 from lrnbv_drake.core.estimation import forward
 from lrnbv_drake.core.estimation.forward import NO_CLIP, ReadingRule, ZoneRays
 from lrnbv_drake.core.estimation.shape import (
-    CUTS,
     HOLE_HEIGHT,
     ROUNDINGS,
     SIDES,
@@ -168,7 +167,7 @@ class Problem:
         region = x.copy()
         if coordinate == YAW:
             region[3] = region[4] = math.hypot(x[3], x[4])
-        elif coordinate <= TOP or coordinate in CUTS:
+        elif coordinate <= TOP:
             region = moved(x, coordinate, hi)
         elif coordinate == TAPER:  # its box grows with the taper's size (`moved`)
             ends = np.clip(x[TAPER] + np.array([lo, hi]), -1.0, 1.0)
@@ -222,17 +221,16 @@ class Problem:
     def refine(self, fit: Fit, span: float, only: int | None = None, max_sweeps: int = 4
                ) -> Fit:
         """A coordinate search of every part (or part `only`): each coordinate on a grid of
-        steps about a quarter of `span` (the sides, top and cuts; the yaw and rounding in
+        steps about a quarter of `span` (the sides and top; the yaw and rounding in
         proportion), moved while its best lies at the grid's edge, then of the finest
-        steps; a rounded part along its `CUTS` too (`Shape.directions`)."""
-        fine = (self.step,) * 5 + (math.radians(0.2),) + (0.02,) * 4 + (self.step,) * 2
-        coarse = ((span / 4,) * 5 + (math.radians(1.5) * span / 0.03,)
-                  + (min(span * 5, 0.25),) * 4 + (span / 4,) * 2)
+        steps."""
+        fine = (self.step,) * 5 + (math.radians(0.2),) + (0.02,) * 4
+        coarse = (span / 4,) * 5 + (math.radians(1.5) * span / 0.03,) + (min(span * 5, 0.25),) * 4
         for _ in range(max_sweeps):
             before = fit.cost
             for k in range(len(fit.shape.rounded)) if only is None else (only,):
                 near = self.near(fit.shape.parts[k], 2 * span + 0.01)
-                for coordinate in fit.shape.directions(k):
+                for coordinate in fit.shape.coordinates(k):
                     steps = (coarse[coordinate], fine[coordinate])
                     for step in steps if steps[0] > 3 * steps[1] else steps[1:]:
                         fit = self._line(fit, k, coordinate, step, 3 * span, near)
@@ -248,8 +246,7 @@ class Problem:
         travelled = 0.0
         while True:
             x = fit.shape.parts[k]
-            offset = coordinate <= YAW or coordinate in CUTS  # moved by, not set to
-            centre = 0.0 if offset else x[coordinate]
+            centre = x[coordinate] if coordinate > YAW else 0.0
             grid = centre + step * np.arange(-3, 4)
             xs = np.array([moved(x, coordinate, g) for g in grid])
             if fit.shape.solid[k]:
@@ -270,7 +267,7 @@ class Problem:
                 return fit
             fit = self._updated(fit, fit.shape.with_part(k, xs[best]), zones)
             travelled += abs(grid[best] - centre)
-            if best not in (0, len(grid) - 1) or not offset or travelled >= reach:
+            if best not in (0, len(grid) - 1) or coordinate > YAW or travelled >= reach:
                 return fit
 
 

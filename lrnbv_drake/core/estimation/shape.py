@@ -25,11 +25,6 @@ HOLE_HEIGHT = 2.0
 #: Coordinates of a part: its four sides (moved outward), its top, its yaw, its rounding
 #: (6-8) and its taper.
 SIDES, TOP, YAW, TAPER = (0, 1, 2, 3), 4, 5, 9
-#: Search directions of a rounded part that are not coordinates (its parameters are the
-#: same): its length's (10) or width's (11) ends moved outward together and its rounding
-#: along that side scaled with the side squared, the same quadric cut by a longer or shorter
-#: box. The quadric's sides and the box's are a valley the coordinates cross one at a time.
-CUTS = (10, 11)
 
 @dc.dataclass(frozen=True)
 class Shape:
@@ -57,12 +52,6 @@ class Shape:
         rounding = (6, 7) if self.tapered[k] or not self.solid[k] else (6, 7, 8)
         return ((0, 1, 2, 3) + (TOP,) * self.solid[k] + (YAW,) + rounding * self.rounded[k]
                 + (TAPER,) * self.tapered[k])
-
-    def directions(self, k: int) -> tuple[int, ...]:
-        """The directions part k is searched along: its `coordinates` and, for each side it
-        is rounded across, that side's cut (`CUTS`)."""
-        cuts = tuple(c for c in CUTS if self.rounded[k] and self.parts[k][c - 4] > 0)
-        return self.coordinates(k) + cuts
 
     def with_part(self, k: int, x: np.ndarray, rounded: bool | None = None,
                   tapered: bool | None = None) -> Shape:
@@ -147,20 +136,11 @@ def part_of_box(box: OrientedBox, table: float) -> np.ndarray:
 
 def moved(x: np.ndarray, coordinate: int, value: float) -> np.ndarray:
     """Part x with a side moved outward by `value` (0-3), its top raised (4), its yaw turned
-    (5), its rounding's r (6-8) set to `value` (within [0, 1]), its taper (9, within
+    (5), its rounding's r (6-8) set to `value` (within [0, 1]) or its taper (9, within
     [-1, 1]) turned about its section at mid-height, which stays: a taper alone would move
-    the top's edges, which the readings see best, and the base's against each other; or
-    its length's or width's ends moved outward by `value` each with its quadric kept (10,
-    11: `CUTS`, its rounding r times s^2 at most 1 for the side's scale s)."""
+    the top's edges, which the readings see best, and the base's against each other."""
     y = x.copy()
-    if coordinate in CUTS:
-        axis = coordinate - 7
-        r = y[axis + 3]
-        widest = 1.0 / math.sqrt(r) if r > 0 else math.inf
-        scale = min(max(1.0 + 2 * value / y[axis], MIN_SIDE / y[axis]), widest)
-        y[axis] *= scale
-        y[axis + 3] = min(r * scale ** 2, 1.0)
-    elif coordinate in SIDES:
+    if coordinate in SIDES:
         axis = 3 + coordinate // 2
         value = max(value, MIN_SIDE - y[axis])
         sign = 1.0 if coordinate % 2 else -1.0
