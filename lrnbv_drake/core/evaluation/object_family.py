@@ -156,9 +156,9 @@ _add("hammer", "tool", "a hammer lying flat, a 25-32 cm handle and a 10-13 cm he
      classes.hammer, HELD_OUT)
 _add("stepped_box", "box", "a box 18-25 x 12-16 cm with a smaller box on it, off its centre",
      classes.stepped_box, HELD_OUT)
-_add("star_prism", "prism", "a five-pointed star lying flat, 10-14 cm across, 2-4 cm thick",
+_add("star_prism", "prism", "a five-pointed star lying flat, 10-14 cm across, 2.6-4 cm thick",
      classes.star_prism, HELD_OUT)
-_add("gear", "gear", "a spur gear lying flat, 12-16 cm across, 16-24 teeth, a bore",
+_add("gear", "gear", "a spur gear lying flat, 12-16 cm across, 2.6-3.5 cm thick, a bore",
      classes.gear, HELD_OUT)
 
 

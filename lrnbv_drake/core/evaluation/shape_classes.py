@@ -362,7 +362,7 @@ def star_prism(rng: np.random.Generator) -> trimesh.Trimesh:
     """A five-pointed star lying flat (a cookie cutter, a badge): a footprint of notches."""
     outer = uniform(rng, 0.05, 0.07)
     return trimesh.creation.extrude_polygon(star(5, outer, outer * uniform(rng, 0.45, 0.55)),
-                                            uniform(rng, 0.02, 0.04))
+                                            uniform(rng, 0.026, 0.04))
 
 
 def gear(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -375,7 +375,7 @@ def gear(rng: np.random.Generator) -> trimesh.Trimesh:
     profile = shapely.Polygon(np.c_[(radii * np.cos(angles)).ravel(),
                                     (radii * np.sin(angles)).ravel()])
     bore = shapely.Point(0, 0).buffer(outer * uniform(rng, 0.2, 0.3), quad_segs=SEGMENTS // 4)
-    return trimesh.creation.extrude_polygon(profile.difference(bore), uniform(rng, 0.015, 0.03))
+    return trimesh.creation.extrude_polygon(profile.difference(bore), uniform(rng, 0.026, 0.035))
 
 
 def flattened(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
