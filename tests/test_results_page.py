@@ -103,6 +103,24 @@ def test_results_runs_the_manifest_writes_its_tables_and_regenerates_them_identi
     assert stamp.read_text() == here
 
 
+def test_a_campaign_refused_before_its_first_episode_is_begun_again_on_new_source(tmp_path):
+    """A campaign refused for bad input leaves only its stamp: on other source it begins
+    again without --restart. A folder with more in it but no campaign.json is not deleted."""
+    from lrnbv_drake.cli.results import _campaign_folder, source_version
+    manifest = Manifest("tiny", "Tiny", ("--planners", "heu"))
+    stamp = tmp_path / "tiny" / "source.txt"
+    stamp.parent.mkdir()
+    stamp.write_text("0000000-0000000 0000000\n")
+    here, head = source_version()
+    assert _campaign_folder(tmp_path, manifest, restart=False) == (stamp.parent, head)
+    assert stamp.read_text() == f"{here} {head}\n"
+    stamp.write_text("0000000-0000000 0000000\n")
+    (stamp.parent / "episodes").mkdir()
+    with pytest.raises(ManifestError, match="holds no campaign"):
+        _campaign_folder(tmp_path, manifest, restart=True)
+    assert (stamp.parent / "episodes").is_dir()
+
+
 def test_the_tests_table_gives_each_planners_median_and_scipys_exact_p_per_object():
     from types import SimpleNamespace
 

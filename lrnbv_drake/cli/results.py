@@ -87,6 +87,8 @@ def _campaign_folder(out: Path, manifest: Manifest, restart: bool) -> tuple[Path
     stamp = folder / "source.txt"
     here, head = source_version()
     began = stamp.read_text().split() if stamp.is_file() else None
+    if began is not None and all(p == stamp for p in folder.iterdir()):
+        began = None  # refused before its first episode (bad input): nothing to keep
     if began is not None and began[0] != here:
         if not restart:
             raise ManifestError(f"'{folder}' holds campaign '{manifest.name}' begun on other "
