@@ -13,6 +13,7 @@ import trimesh
 
 from lrnbv_drake.core.evaluation.solids import (
     SEGMENTS,
+    bore,
     box,
     common,
     cylinder,
@@ -111,10 +112,10 @@ def plate(rng: np.random.Generator) -> trimesh.Trimesh:
 def flange(rng: np.random.Generator) -> trimesh.Trimesh:
     r, plate = uniform(rng, 0.06, 0.08), uniform(rng, 0.012, 0.018)
     hub_r, hub = r * uniform(rng, 0.4, 0.5), uniform(rng, 0.03, 0.045)
-    holes = [cylinder(0.006, plate + 0.01, (0.8 * r * math.cos(a), 0.8 * r * math.sin(a), -0.005))
+    holes = [bore(0.006, plate, (0.8 * r * math.cos(a), 0.8 * r * math.sin(a)))
              for a in np.arange(6) * math.pi / 3 + math.pi / 6]
     solid = union(cylinder(r, plate), cylinder(hub_r, plate + hub))
-    return minus(solid, cylinder(hub_r * 0.7, plate + hub + 0.01, (0, 0, -0.005)), *holes)
+    return minus(solid, bore(hub_r * 0.7, plate + hub), *holes)
 
 
 def l_shape(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -139,7 +140,7 @@ def channel(rng: np.random.Generator) -> trimesh.Trimesh:
 def ring(outer: tuple[float, float], hole: float, height: tuple[float, float]):
     def build(rng: np.random.Generator) -> trimesh.Trimesh:
         r, h = uniform(rng, *outer), uniform(rng, *height)
-        return minus(cylinder(r, h), cylinder(r * hole, h + 0.01, (0, 0, -0.005)))
+        return minus(cylinder(r, h), bore(r * hole, h))
     return build
 
 
@@ -326,8 +327,7 @@ def pipe_lying(rng: np.random.Generator) -> trimesh.Trimesh:
     """A pipe lying (a tube, a cardboard core): a hollow cylinder on its side."""
     outer, wall, length = (uniform(rng, 0.025, 0.04), uniform(rng, 0.003, 0.005),
                            uniform(rng, 0.20, 0.30))
-    return lying(minus(cylinder(outer, length),
-                       cylinder(outer - wall, length + 0.01, (0, 0, -0.005))))
+    return lying(minus(cylinder(outer, length), bore(outer - wall, length)))
 
 
 def hammer(rng: np.random.Generator) -> trimesh.Trimesh:
