@@ -150,42 +150,10 @@ def test_a_merged_zone_reads_the_signal_weighted_mean_depth():
     merged = ReadingRule.of(model, MERGED)
     nearest = ReadingRule.of(model, DeviceBehaviour())
     ones = np.ones(1)
-    assert forward.zone_losses(depths, ones, ones, *merged.args(), 2.0, 5.0, 0.0)[0][0] == \
+    assert forward.zone_losses(depths, ones, ones, *merged.args(), 2.0, 5.0)[0][0] == \
         pytest.approx((32 / 0.3 + 32 / 0.5) / (32 / 0.09 + 32 / 0.25))
-    assert forward.zone_losses(depths, ones, ones, *nearest.args(), 2.0, 5.0, 0.0)[0][0] == \
+    assert forward.zone_losses(depths, ones, ones, *nearest.args(), 2.0, 5.0)[0][0] == \
         pytest.approx(0.3)
-
-
-def test_a_merged_zone_s_sampling_variance_widens_its_sigma():
-    """The same zone as a sample of its footprint: weights w = d^-2 / (32 / 0.09 + 32 /
-    0.25), the mean's variance sum w^2 (d - mean)^2 = 9.47e-5 m^2 (9.7 mm rms, against
-    a sigma of 5 mm), and the loss the soft-L1 of the residual in the widened sigma plus
-    the log of the widening, minus twice the log-likelihood. A zone on one surface has no
-    variance and the plain loss; with the widening off the mixed zone has the plain loss
-    too."""
-    mixed = np.r_[np.full(32, 0.3), np.full(32, 0.5)]
-    flat = np.full(64, 0.3)
-    rule = ReadingRule.of(SensorModelParams(), MERGED)
-    sigma, measured = 0.005, 0.36
-    depths, at, sigmas = np.stack([mixed, flat]), np.full(2, measured), np.full(2, sigma)
-    predicted, losses, spread = forward.zone_losses(depths, at, sigmas, *rule.args(), 2.0,
-                                                    5.0, 1.0)
-    total = 32 / 0.09 + 32 / 0.25
-    mean = (32 / 0.3 + 32 / 0.5) / total
-    variance = (32 * (0.3 - mean) ** 2 / 0.3 ** 4 + 32 * (0.5 - mean) ** 2 / 0.5 ** 4) / total ** 2
-    assert variance == pytest.approx(9.47e-5, rel=0.001)
-    assert spread == pytest.approx([variance, 0.0], rel=1e-9, abs=1e-15)
-
-    def soft_l1(r):
-        return 8.0 * (math.sqrt(1 + (r / 2) ** 2) - 1)
-    widened = math.sqrt(sigma ** 2 + variance)
-    assert losses[0] == pytest.approx(soft_l1((measured - mean) / widened)
-                                      + math.log(widened ** 2 / sigma ** 2))
-    assert losses[1] == pytest.approx(soft_l1((measured - 0.3) / sigma))
-    assert predicted == pytest.approx([mean, 0.3])
-    plain = forward.zone_losses(depths, at, sigmas, *rule.args(), 2.0, 5.0, 0.0)
-    assert plain[1] == pytest.approx([soft_l1((measured - mean) / sigma), losses[1]])
-    assert np.all(plain[2] == 0.0)
 
 
 def test_a_zone_bundle_culls_only_boxes_none_of_its_sub_rays_meets():
@@ -237,18 +205,15 @@ def test_a_sub_ray_that_sees_a_surface_before_a_region_does_not_cross_it():
     assert rays.crossing(slab, 0.0, before=np.array([[0.39 / 0.35]]))[0, 0]
 
 
-@pytest.mark.parametrize("widen", [False, True], ids=["plain", "reading_variance"])
-def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads(widen):
+def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads():
     """`Problem.trials` (one kernel call for a grid of one coordinate, re-casting only the
     sub-rays the grid can change) gives each candidate's zone losses as `evaluate` of that
-    shape does, and the same bits on one thread as on every thread; with each reading's
-    variance widening its sigma too (its sums kept apart from the candidates')."""
+    shape does, and the same bits on one thread as on every thread."""
     frames, truth, model = render("{object: {name: mug}}")
     scenario = load_scenario(data="{object: {name: mug}}")
     rays = ZoneRays.concatenate([zone_rays(f, X, model) for f, X in frames], 64)
     problem = Problem(rays, 0.0, np.array(scenario.cell.table_extent),
-                      ReadingRule.of(model, sensor_behaviour(scenario)), 2.0, 5.0, 0.0005,
-                      widen=widen)
+                      ReadingRule.of(model, sensor_behaviour(scenario)), 2.0, 5.0, 0.0005)
     body = box_shape(truth, 0.0).parts[0]
     body[6:9] = (1, 1, 0)  # an upright cylinder, and a box part beside it
     shape = Shape(np.array([body, [*truth.center[:2] + 0.05, 0.3, 0.03, 0.02, 0.05, 0, 0, 0, 0]]),
@@ -261,7 +226,6 @@ def test_a_grid_costs_what_each_candidate_costs_alone_on_any_number_of_threads(w
         numba.set_num_threads(before)
     fit = problem.evaluate(shape)
     assert np.array_equal(alone.depths, fit.depths) and np.array_equal(alone.costs, fit.costs)
-    assert (np.count_nonzero(fit.spread) > 10) == widen
     near = np.arange(len(problem))
     boxed = box_shape(truth, 0.0)
     # The cylinder narrowing upward: a side's move moves the opposite side too.

@@ -250,7 +250,7 @@ def _residuals(theta: np.ndarray, views: list[_Readings], rule: ReadingRule,
         depths = _plane_depths(X_WS[:3, 3], v.directions @ X_WS[:3, :3].T, plane, at_xy,
                                extent)
         predicted.append(zone_losses(depths, v.measured, v.sigma, *rule.args(), 1.0,
-                                     _NO_RETURN, 0.0)[0])
+                                     _NO_RETURN)[0])
     predicted = np.concatenate(predicted)
     measured, sigma, zones = (np.concatenate([getattr(v, name) for v in views])
                               for name in ("measured", "sigma", "zones"))

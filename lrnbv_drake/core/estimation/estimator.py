@@ -157,7 +157,7 @@ class ShapeEstimator:
         corners = np.concatenate(corners)
         return Problem(rays.take(keep), self._table, self._extent, self._rule, p.loss_scale,
                        p.no_return, p.step, (corners.min(axis=0), corners.max(axis=0)),
-                       p.search_casts, p.taper, p.reading_variance)
+                       p.search_casts, p.taper)
 
     def _pitch(self, problem: Problem) -> float:
         """The sub-rays' spacing at the fitted zones' median range: the objective is a
@@ -198,9 +198,7 @@ class ShapeEstimator:
     def _misfits(self, problem: Problem, fit: Fit) -> tuple[float, bool, float, bool]:
         """The fit's misfit and whether it is flagged; the same for the bare table's zones."""
         dof = len(problem) - fit.shape.n_params
-        # The readings' scatter: the loss less what the predictions' own variance adds.
-        widening = float(np.log1p(fit.spread / problem.rays.sigma ** 2).sum())
-        misfit = (fit.cost - widening) / max(dof, 1) / self._noise
+        misfit = fit.cost / max(dof, 1) / self._noise
         table_misfit, n_table = self._table_misfit(fit.shape)
         return (misfit, misfit > misfit_limit(dof), table_misfit,
                 table_misfit > misfit_limit(n_table))

@@ -61,14 +61,12 @@ def bic(cost: float, n: int, k: int) -> float:
 
 @dc.dataclass(frozen=True)
 class Fit:
-    """A shape and what it predicts: each sub-ray's depth, each zone's reading, its loss and
-    the reading's variance as a sample of the zone's footprint (`forward._reading`)."""
+    """A shape and what it predicts: each sub-ray's depth, each zone's reading and loss."""
 
     shape: Shape
     depths: np.ndarray
     predicted: np.ndarray
     costs: np.ndarray
-    spread: np.ndarray
 
     @property
     def cost(self) -> float:
@@ -82,7 +80,7 @@ class Problem:
     def __init__(self, rays: ZoneRays, table: float, extent: np.ndarray, rule: ReadingRule,
                  loss_scale: float, no_return: float, step: float,
                  region: tuple[np.ndarray, np.ndarray] | None = None,
-                 budget: float = math.inf, taper: bool = False, widen: bool = False) -> None:
+                 budget: float = math.inf, taper: bool = False) -> None:
         self.rays, self.table, self.rule = rays, table, rule
         # Whether a shape's one solid may be tried tapered (`classings`, `choose_structure`).
         self.taper = taper
@@ -90,9 +88,7 @@ class Problem:
         # time), and how many it may make before every further grid is skipped (a search
         # past it keeps the best shape it has).
         self.casts, self.budget = 0, budget
-        # The loss's scale and no-return residual, and whether a reading's own variance
-        # widens its sigma (`forward.zone_losses`).
-        self.loss = (loss_scale, no_return, 1.0 if widen else 0.0)
+        self.loss = (loss_scale, no_return)
         self.step = step
         # (lower, upper) world corners the solid parts must stay within: the zones were
         # chosen there, so beyond it nothing in the fit would bound a part.
@@ -137,11 +133,9 @@ class Problem:
     def _updated(self, fit: Fit, shape: Shape, zones: np.ndarray) -> Fit:
         """`fit` with `shape`, its zones `zones` evaluated again (the others unchanged)."""
         part = self.evaluate(shape, zones=zones)
-        depths, predicted, costs, spread = (a.copy() for a in (
-            fit.depths, fit.predicted, fit.costs, fit.spread))
-        depths[zones], predicted[zones] = part.depths, part.predicted
-        costs[zones], spread[zones] = part.costs, part.spread
-        return Fit(shape, depths, predicted, costs, spread)
+        depths, predicted, costs = fit.depths.copy(), fit.predicted.copy(), fit.costs.copy()
+        depths[zones], predicted[zones], costs[zones] = part.depths, part.predicted, part.costs
+        return Fit(shape, depths, predicted, costs)
 
     def near(self, x: np.ndarray, grow: float) -> np.ndarray:
         """Indices of the zones with a sub-ray through part x's box grown by `grow` on every

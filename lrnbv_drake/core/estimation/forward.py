@@ -290,33 +290,22 @@ def shape_depths(origins, directions, planes, parts, solid, base, table, clip):
 
 
 @numba.njit(cache=True, nogil=True)
-def _spread(s2, s3, s4, mean):
-    """The variance of a signal-weighted mean depth as a sample of its zone's footprint:
-    sum w_j^2 (d_j - mean)^2 with w_j = d_j^-2 / s2, from the sums s_k = sum d_j^-k."""
-    return max((s2 - 2.0 * mean * s3 + mean * mean * s4) / (s2 * s2), 0.0)
-
-
-@numba.njit(cache=True, nogil=True)
 def _reading(depths, min_count, gap_m, slope, merge_m, strongest, merged_mode, work):
-    """The model's reading of one zone from its sub-rays' depths (inf: no return), NaN where
-    the rule reports nothing, and its variance as a sample of the footprint (`_spread`;
-    0 but for a zone merged into one signal-weighted target). `work`: (3 m + 4) scratch."""
+    """The model's reading of one zone from its sub-rays' depths (inf: no return); NaN where
+    the rule reports nothing. `work`: (3 m + 4) scratch."""
     m = depths.shape[0]
     if merge_m > 0.0 and merged_mode == 0:
-        lo, hi, s1, s2, s3, s4 = np.inf, -np.inf, 0.0, 0.0, 0.0, 0.0
+        lo, hi, s1, s2 = np.inf, -np.inf, 0.0, 0.0
         for j in range(m):
             d = depths[j]
             if math.isfinite(d) and d > 0.0:
                 lo, hi = min(lo, d), max(hi, d)
-                w = 1.0 / (d * d)
                 s1 += 1.0 / d
-                s2 += w
-                s3 += w / d
-                s4 += w * w
+                s2 += 1.0 / (d * d)
         if s2 == 0.0:
-            return np.nan, 0.0
+            return np.nan
         if hi - lo < merge_m:  # one target: every surface merged
-            return s1 / s2, _spread(s2, s3, s4, s1 / s2)
+            return s1 / s2
     ordered, signal, ones = work[:m], work[m:2 * m], work[2 * m:3 * m]
     for j in range(m):
         ordered[j] = depths[j] if depths[j] > 0.0 else np.inf
@@ -325,41 +314,32 @@ def _reading(depths, min_count, gap_m, slope, merge_m, strongest, merged_mode, w
         signal[j] = 1.0 / (ordered[j] * ordered[j]) if math.isfinite(ordered[j]) else 0.0
         ones[j] = 1.0
     if merge_m <= 0.0 and not strongest:
-        return sorted_cluster_median(ordered, min_count, gap_m, slope), 0.0
+        return sorted_cluster_median(ordered, min_count, gap_m, slope)
     target = work[3 * m:3 * m + 4]
     sorted_target(ordered, signal, ones, np.zeros(m, np.bool_), m, gap_m, slope, merge_m,
                   strongest, merged_mode, 0.0, min_count, target)
-    return target[0], 0.0
+    return target[0]
 
 
 @numba.njit(cache=True, nogil=True)
-def _loss(measured, sigma, predicted, spread, scale, no_return):
-    """Soft-L1 of the residual in sigmas, `no_return` sigmas where nothing is predicted. The
-    prediction's own variance `spread` (`_spread`) widens the sigma, and the loss, minus
-    twice the log-likelihood, pays 2 log of the widening."""
-    if math.isnan(predicted):
-        r, widen = no_return, 1.0
-    else:
-        widen = 1.0 + spread / (sigma * sigma)
-        r = (measured - predicted) / (sigma * math.sqrt(widen))
+def _loss(measured, sigma, predicted, scale, no_return):
+    """Soft-L1 of the residual in sigmas, `no_return` sigmas where nothing is predicted."""
+    r = no_return if math.isnan(predicted) else (measured - predicted) / sigma
     q = r / scale
-    return 2.0 * scale * scale * (math.sqrt(1.0 + q * q) - 1.0) + math.log(widen)
+    return 2.0 * scale * scale * (math.sqrt(1.0 + q * q) - 1.0)
 
 
 @numba.njit(cache=True, nogil=True)
 def zone_losses(depths, measured, sigma, min_count, gap_m, slope, merge_m, strongest,
-                merged_mode, scale, no_return, widen):
-    """(n,) each zone's reading, its loss and the reading's variance (`_reading`) times
-    `widen` (1: the loss counts it, 0: the model's sigma alone)."""
+                merged_mode, scale, no_return):
+    """(n,) each zone's reading (`_reading`) and its loss."""
     work = np.empty(3 * depths.shape[1] + 4)
     predicted, out = np.empty(depths.shape[0]), np.empty(depths.shape[0])
-    spread = np.empty(depths.shape[0])
     for i in range(depths.shape[0]):
-        predicted[i], spread[i] = _reading(depths[i], min_count, gap_m, slope, merge_m,
-                                           strongest, merged_mode, work)
-        spread[i] *= widen
-        out[i] = _loss(measured[i], sigma[i], predicted[i], spread[i], scale, no_return)
-    return predicted, out, spread
+        predicted[i] = _reading(depths[i], min_count, gap_m, slope, merge_m, strongest,
+                                merged_mode, work)
+        out[i] = _loss(measured[i], sigma[i], predicted[i], scale, no_return)
+    return predicted, out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -408,7 +388,7 @@ def crossing(origins, directions, planes, rows, x, floor, before=None):
 @numba.njit(cache=True, nogil=True, parallel=True)
 def grid_costs(origins, directions, measured, sigma, zones, starts, subrays, parts, solid,
                k, xs, depths, base, table, min_count, gap_m, slope, merge_m, strongest,
-               merged_mode, scale, no_return, widen):
+               merged_mode, scale, no_return):
     """(len(xs), len(zones)) each zone's loss with part k at each candidate xs[n]: a grid of
     one coordinate in one call. Only the sub-rays `subrays[starts[z]:starts[z + 1]]` of zone
     z can change (they cross what the grid moves); the others keep `depths`. Zones are
@@ -432,7 +412,7 @@ def grid_costs(origins, directions, measured, sigma, zones, starts, subrays, par
                                                            parts[p], cs[p], sn[p], table,
                                                            NO_CLIP)
         # The zone's unchanged sub-rays, summed once for the merged reading.
-        lo, hi, s1, s2, s3, s4 = np.inf, -np.inf, 0.0, 0.0, 0.0, 0.0
+        lo, hi, s1, s2 = np.inf, -np.inf, 0.0, 0.0
         for j in range(m):
             d[j] = depths[i, j]
         for a in range(starts[z], starts[z + 1]):
@@ -440,13 +420,10 @@ def grid_costs(origins, directions, measured, sigma, zones, starts, subrays, par
         for j in range(m):
             if math.isfinite(d[j]):
                 lo, hi = min(lo, d[j]), max(hi, d[j])
-                w = 1.0 / (d[j] * d[j])
                 s1 += 1.0 / d[j]
-                s2 += w
-                s3 += w / d[j]
-                s4 += w * w
+                s2 += 1.0 / (d[j] * d[j])
         for n in range(xs.shape[0]):
-            c_lo, c_hi, c1, c2, c3, c4 = lo, hi, s1, s2, s3, s4
+            c_lo, c_hi, c1, c2 = lo, hi, s1, s2
             for a in range(starts[z], starts[z + 1]):
                 j = subrays[a]
                 for p in range(n_parts):
@@ -456,18 +433,14 @@ def grid_costs(origins, directions, measured, sigma, zones, starts, subrays, par
                 d[j] = _visible(t0, t1, solid, base[i, j])
                 if merged and math.isfinite(d[j]):
                     c_lo, c_hi = min(c_lo, d[j]), max(c_hi, d[j])
-                    w = 1.0 / (d[j] * d[j])
                     c1 += 1.0 / d[j]
-                    c2 += w
-                    c3 += w / d[j]
-                    c4 += w * w
+                    c2 += 1.0 / (d[j] * d[j])
             if merged and c2 > 0.0 and c_hi - c_lo < merge_m:
-                predicted, spread = c1 / c2, _spread(c2, c3, c4, c1 / c2)
+                predicted = c1 / c2
             elif merged and c2 == 0.0:
-                predicted, spread = np.nan, 0.0
+                predicted = np.nan
             else:
-                predicted, spread = _reading(d, min_count, gap_m, slope, merge_m, strongest,
-                                             merged_mode, work)
-            out[n, z] = _loss(measured[i], sigma[i], predicted, widen * spread, scale,
-                              no_return)
+                predicted = _reading(d, min_count, gap_m, slope, merge_m, strongest,
+                                     merged_mode, work)
+            out[n, z] = _loss(measured[i], sigma[i], predicted, scale, no_return)
     return out

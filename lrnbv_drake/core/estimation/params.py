@@ -34,7 +34,3 @@ class EstimationParams:
     # Whether the shape's one solid may taper (a cone, a pyramid, a bucket, a cup; records
     # 0039 and 0040).
     taper: bool = True
-    # Whether a merged zone's predicted reading carries its variance as a sample of the
-    # zone's footprint by the k x k sub-rays, widening its sigma (record 0043; off until
-    # campaigns measure it).
-    reading_variance: bool = False
