@@ -4,6 +4,10 @@ import os
 
 import pytest
 
+# First: the package points numba at the kernels `make` compiled (lrnbv_drake/numba_cache.py),
+# which it can only do before numba is imported (pytest_configure below imports it).
+import lrnbv_drake  # noqa: F401
+
 os.environ["DRAKE_ALLOW_NETWORK"] = "meshcat"
 os.environ.setdefault("MPLBACKEND", "Agg")
 # `make test` runs two pytest-xdist workers on CI's two cores: each takes its share of the

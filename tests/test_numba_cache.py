@@ -131,3 +131,12 @@ def test_compile_kernels_gives_every_kernel_python_calls_in_the_loop_a_signature
     out = subprocess.run([sys.executable, "-c", UNCOMPILED, *LOOP_KERNEL_MODULES],
                          capture_output=True, text=True, check=True, timeout=600).stdout
     assert out.split() == []
+
+
+def test_the_tests_compile_into_the_cache_the_package_chooses():
+    """conftest imports numba (for xdist's thread counts) after the package, which points
+    numba at the versioned cache `make` fills; numba imported first would compile every kernel
+    again per worker, into numba's per-file cache that misses an edit of a called kernel."""
+    import numba
+
+    assert Path(numba.config.CACHE_DIR) == cache_dir(PACKAGE)
