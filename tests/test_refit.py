@@ -94,6 +94,16 @@ def test_an_episode_that_found_no_object_gives_no_box(heu_run, tmp_path, capsys)
     assert "no object found" in capsys.readouterr().out
 
 
+def test_extraction_settings_given_to_the_refit_rebuild_the_cell_boxes(heu_run, tmp_path,
+                                                                      capsys):
+    """The same search as above, given on the command line instead of in the episode's
+    scenario: the cell boxes are the map's under the refit's settings, so no object is found."""
+    code, (result,) = _refit(tmp_path, heu_run, "--scenario-text",
+                             "{extraction: {center: [0.0, 0.5]}}")
+    assert code == 1 and result["estimated_box"] is None and result["container"] is None
+    assert "no object found" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("n", [2, 7, 12])
 def test_the_first_poses_give_what_the_episode_had_after_them(heu_run, tmp_path, n):
     """The first n frames, their map rebuilt offline, give the estimate the episode had

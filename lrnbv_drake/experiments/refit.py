@@ -6,9 +6,10 @@ Why: the box is fitted to the raw zone readings through the sensor model
 characterize`), other estimator settings or another estimator change what the same readings
 say. An episode's folder (`lrnbv run`, a campaign's `runs/*`, `lrnbv hardware`) keeps every
 frame with its sensor pose (frames.npz) and the scenario it ran (report.json): that is all
-the estimate needs. The map is rebuilt from the frames, pose by pose, for the cell box the
-episode had after each (the map is a function of its frames), so under the episode's own
-scenario the estimate is the episode's, pose by pose; nothing is simulated again.
+the estimate needs. The map is rebuilt from the frames, pose by pose, for the cell box after
+each (the map is a function of its frames and of the mapping and extraction settings), so
+under the episode's own scenario the estimate is the episode's, pose by pose; nothing is
+simulated again.
 """
 
 from __future__ import annotations
@@ -140,17 +141,18 @@ def refit(episode: RecordedEpisode, scenario: Scenario) -> dict[str, Any]:
     episode's own, or it with a calibrated `sensor:` section, a commissioned mount, other
     `estimation:` settings or another estimator), with the errors against the truth for a
     simulated episode. The fields are report.json's. A commissioned `sensor.mount` moves
-    every recorded sensor pose to it (`remounted`) and rebuilds the map from them.
+    every recorded sensor pose to it (`remounted`); the map is rebuilt under `scenario`.
 
     Raises:
         ScenarioError: a field of `scenario` out of range or not one of its choices.
     """
     check_ranges(scenario)
-    readings, boxes = episode.readings, episode.cell_boxes
+    readings = episode.readings
     if scenario.sensor.mount != episode.scenario.sensor.mount:
         readings = remounted(readings, episode.scenario.sensor.mount, scenario.sensor.mount)
-        boxes = cell_boxes(scenario, readings)
-    track = estimate_readings(scenario, readings, boxes)
+    # The map under `scenario`'s mapping and extraction settings, which may not be the
+    # episode's (a tenth of a second for 20 frames).
+    track = estimate_readings(scenario, readings, cell_boxes(scenario, readings))
     entry = box_entry(scenario, track.latest)
     out: dict[str, Any] = {
         "folder": str(episode.folder),
