@@ -122,9 +122,11 @@ def test_a_fault_mid_motion_stops_saves_explains_and_resumes(fault, tmp_path, ca
 def test_the_watchdog_stops_the_script_within_1_s_when_the_session_is_killed(tmp_path):
     scenario, out = write_scenario(tmp_path), tmp_path / "out"
     with time_limit(TEST_TIMEOUT), _emulator() as emu:
-        session = subprocess.Popen([sys.executable, "-m", "lrnbv_drake.cli.main",
-                                    *cli_args(emu, scenario, out)],
-                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        log = tmp_path / "session.err"
+        with log.open("wb") as err:
+            session = subprocess.Popen([sys.executable, "-m", "lrnbv_drake.cli.main",
+                                        *cli_args(emu, scenario, out)],
+                                       stdout=subprocess.DEVNULL, stderr=err)
         killed = []
         trigger = WhenMoving(emu, out, first_pose(),
                              lambda: killed.append(time.time()) or session.kill())
@@ -133,7 +135,8 @@ def test_the_watchdog_stops_the_script_within_1_s_when_the_session_is_killed(tmp
         finally:
             session.kill()
             trigger.join()
-        assert killed, "the arm never left the first pose"
+        assert killed, ("the arm never left the first pose; the session exited "
+                        f"{session.returncode}:\n{log.read_text()[-3000:]}")
         record = emu.wait_for(lambda r: r["watchdog_trips"], timeout=2.0)
         (trip,) = record["watchdog_trips"]
         # On a loaded machine the emulator itself notices late by the CPU it was starved of.

@@ -14,6 +14,7 @@ from pydrake.systems.analysis import Simulator
 
 from lrnbv_drake.core.robot import kinematics
 from lrnbv_drake.core.sensing.sensor import ToFFrame
+from lrnbv_drake.core.sensing.tof_device import _targets_kernel
 from lrnbv_drake.core.sensing.tof_protocol import MAX_LINE_BYTES
 from lrnbv_drake.drivers.playback_robot import PlaybackRobot
 from lrnbv_drake.drivers.tof_serial import SensorTimeout, ToFSerialReader
@@ -236,6 +237,19 @@ def test_stamper_gives_up_on_a_sensor_that_never_sends():
     _, simulator, _ = _stamper()
     with pytest.raises(SensorTimeout, match=r"no new frame from the ToF sensor for 0\.8 s"):
         simulator.AdvanceTo(1.0)
+
+
+def test_the_dry_run_board_has_paid_its_one_time_costs_when_start_returns():
+    """The session waits `sensor_timeout` plus a boot allowance for the first frame; the
+    device kernels' compile (seconds on a loaded machine) must not fall into that wait.
+    (Run alone: another test of the process may have compiled them already.)"""
+    scenario = load_scenario(data="device: {profile: datasheet}")
+    q = list(scenario.robot.initial_position)
+    with ToFSerialReader("loop://", scenario.sensor.baud) as driver:
+        dut = SimulatedToFBoard(scenario, lambda: q, driver).start()
+        compiled = bool(_targets_kernel.signatures)
+        dut.close()
+    assert compiled
 
 
 def test_the_dry_run_board_with_the_datasheet_device_reads_status_6_only_at_first():

@@ -72,12 +72,16 @@ class SimulatedToFBoard:
     def _run(self) -> None:
         try:
             cell = make_sim_cell(self._scenario, bare_table=self._bare_table).diagram
+            context = cell.CreateDefaultContext()
+            tof = cell.GetSubsystemByName("tof")
+            # One frame rendered and thrown away: its one-time costs (the device kernels'
+            # compile, seconds on a loaded machine) belong to start(), not to the session's
+            # wait for the first frame. A real board streams as soon as it is started.
+            self._render(cell, context, tof, sequence=0, previous=None)
         except BaseException as e:  # handed to start(), which raises it
             self._error = e
             self._ready.set()
             return
-        context = cell.CreateDefaultContext()
-        tof = cell.GetSubsystemByName("tof")
         self._ready.set()
         started = time.monotonic()
         deadline = started
@@ -88,12 +92,9 @@ class SimulatedToFBoard:
                 continue
             sequence += 1
             try:
-                cell.GetInputPort("ur5e.position").FixValue(context,
-                                                            np.asarray(self._joints(), float))
                 # The context never advances: the board hands each frame the one before it,
                 # or every frame would be the first after ranging starts (status 6).
-                frame = tof.CaptureFrame(tof.GetMyContextFromRoot(context), sequence=sequence,
-                                         previous=frame)
+                frame = self._render(cell, context, tof, sequence, previous=frame)
                 stamp = round((time.monotonic() - started) * 1e6)
                 self._driver.write(encode_frame(dc.replace(frame, timestamp_us=stamp)))
             except SensorError as e:
@@ -101,3 +102,9 @@ class SimulatedToFBoard:
             except Exception:
                 _log.exception("simulated board: rendering a frame failed; the board stops")
                 return
+
+    def _render(self, cell, context, tof, sequence: int, previous):
+        """The frame `sequence` at the robot's current joints."""
+        cell.GetInputPort("ur5e.position").FixValue(context, np.asarray(self._joints(), float))
+        return tof.CaptureFrame(tof.GetMyContextFromRoot(context), sequence=sequence,
+                                previous=previous)
