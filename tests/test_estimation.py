@@ -141,6 +141,20 @@ def test_a_shape_of_parts_of_another_width_is_refused():
         Shape(np.zeros((1, 9)), (False,), (True,))
 
 
+@pytest.mark.parametrize(("hole_x", "length", "center_x"), [
+    (-0.12, 0.22, 0.04),  # cuts the bar's end off (x < -0.07): the box ends at the hole
+    (0.0, 0.30, 0.0),  # a slot across its middle: the box is the bar's
+])
+def test_the_box_of_a_shape_is_that_of_its_material_not_of_its_solids(hole_x, length,
+                                                                      center_x):
+    bar = [0.0, 0.0, 0.0, 0.30, 0.02, 0.03, 0, 0, 0, 0]  # 30 x 2 cm along x, 3 cm tall
+    hole = [hole_x, 0.0, 0.0, 0.10, 0.10, 2.0, 0, 0, 0, 0]
+    dut = Shape(np.array([bar, hole]), (False, False), (True, False))
+    box = dut.box(0.0)
+    assert box.dims == pytest.approx([length, 0.02, 0.03], abs=1e-9)
+    assert box.center[:2] == pytest.approx([center_x, 0.0], abs=1e-9)
+
+
 def test_a_merged_zone_reads_the_signal_weighted_mean_depth():
     """Half a zone's sub-rays on a top at 0.3 m, half on the table at 0.5 m: each returns
     1 / d^2, so the zone reads (32 / 0.3 + 32 / 0.5) / (32 / 0.09 + 32 / 0.25) = 0.3529 m;

@@ -88,32 +88,30 @@ class Shape:
         return text + (f", {holes} hole{'s' * (holes > 1)}" if holes else "")
 
     def footprint(self) -> np.ndarray:
-        """(n, 2) points of the solids' footprint whose convex hull is the footprint's."""
-        t = np.linspace(0, 2 * np.pi, 96, endpoint=False)
-        s = np.linspace(-1, 1, 33)
-        points = []
-        for x, solid in zip(self.parts, self.solid, strict=True):
-            if not solid:
-                continue
-            a, b = x[3] / 2, x[4] / 2
-            local = np.concatenate([
-                np.stack([a * np.cos(t) / math.sqrt(max(x[6], 1e-9)),
-                          b * np.sin(t) / math.sqrt(max(x[7], 1e-9))], axis=1),
-                np.stack([np.r_[a * s, a * s, np.full(33, a), np.full(33, -a)],
-                          np.r_[np.full(33, b), np.full(33, -b), b * s, b * s]], axis=1)])
-            inside = ((np.abs(local[:, 0]) <= a + 1e-9) & (np.abs(local[:, 1]) <= b + 1e-9)
-                      & (x[6] * (local[:, 0] / a) ** 2 + x[7] * (local[:, 1] / b) ** 2
-                         <= 1 + 1e-9))
-            c, sn = math.cos(x[2]), math.sin(x[2])
-            points.append(local[inside] @ np.array([[c, sn], [-sn, c]]) + x[:2])
-        return np.concatenate(points)
+        """(n, 2) points whose convex hull is the material's footprint's: the solids'
+        outlines outside every hole, and the holes' outlines inside a solid (a hole that
+        cuts a solid's end off moves its end)."""
+        solids = [x for x, solid in zip(self.parts, self.solid, strict=True) if solid]
+        holes = [x for x, solid in zip(self.parts, self.solid, strict=True) if not solid]
+        outlines = [_outline(x) for x in solids + holes]
+        points = np.concatenate(outlines)
+        of_solid = np.arange(len(points)) < sum(len(o) for o in outlines[:len(solids)])
+        in_solid, in_hole = of_solid.copy(), np.zeros(len(points), bool)
+        for x in solids:
+            in_solid |= _within(x, points, 1e-9)
+        for x in holes:
+            in_hole |= _within(x, points, -1e-9)
+        material = in_solid & ~in_hole
+        return points[material]
 
     def box(self, table: float) -> OrientedBox:
-        """The solids' bounding box: a single part's own box, else the minimum-area box of
-        their footprints."""
+        """The material's bounding box: a single solid's own box where no hole cuts its
+        outline, else the minimum-area box of the footprint (`footprint`)."""
         solids = self.parts[np.array(self.solid)]
+        holes = self.parts[~np.array(self.solid)]
         height = float(solids[:, 5].max())
-        if len(solids) == 1:
+        if len(solids) == 1 and not any(_within(h, _outline(solids[0]), -1e-9).any()
+                                        for h in holes):
             x = solids[0]
             return OrientedBox(np.array([x[0], x[1], table + height / 2]),
                                np.array([x[3], x[4], height]), float(x[2]))
@@ -182,3 +180,31 @@ def stepped(shape: Shape, k: int) -> Shape:
     upper[3:5] *= 1.0 - 3 * x[TAPER] / 4
     return (shape.without(k).added(lower, True, shape.rounded[k])
             .added(upper, True, shape.rounded[k]))
+
+
+def _outline(x: np.ndarray) -> np.ndarray:
+    """(n, 2) world points of part x's footprint outline: its quadric rounding's ellipse
+    within its box, and the box's sides within the rounding."""
+    t = np.linspace(0, 2 * np.pi, 96, endpoint=False)
+    s = np.linspace(-1, 1, 33)
+    a, b = x[3] / 2, x[4] / 2
+    local = np.concatenate([
+        np.stack([a * np.cos(t) / math.sqrt(max(x[6], 1e-9)),
+                  b * np.sin(t) / math.sqrt(max(x[7], 1e-9))], axis=1),
+        np.stack([np.r_[a * s, a * s, np.full(33, a), np.full(33, -a)],
+                  np.r_[np.full(33, b), np.full(33, -b), b * s, b * s]], axis=1)])
+    c, sn = math.cos(x[2]), math.sin(x[2])
+    world = local @ np.array([[c, sn], [-sn, c]]) + x[:2]
+    return world[_within(x, world, 1e-9)]
+
+
+def _within(x: np.ndarray, points: np.ndarray, tol: float) -> np.ndarray:
+    """(n,) whether world `points` (n, 2) lie in part x's footprint grown by `tol` (shrunk
+    where negative)."""
+    c, sn = math.cos(x[2]), math.sin(x[2])
+    local = (points - x[:2]) @ np.array([[c, -sn], [sn, c]])
+    a, b = x[3] / 2 + tol, x[4] / 2 + tol
+    if a <= 0 or b <= 0:
+        return np.zeros(len(points), bool)
+    return ((np.abs(local[:, 0]) <= a) & (np.abs(local[:, 1]) <= b)
+            & (x[6] * (local[:, 0] / a) ** 2 + x[7] * (local[:, 1] / b) ** 2 <= 1 + tol))
