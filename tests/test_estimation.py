@@ -155,6 +155,14 @@ def test_the_box_of_a_shape_is_that_of_its_material_not_of_its_solids(hole_x, le
     assert box.center[:2] == pytest.approx([center_x, 0.0], abs=1e-9)
 
 
+def test_a_shape_whose_holes_remove_every_solid_still_has_a_box():
+    """A search may try a hole over a small solid; the box falls back to the solids'."""
+    solid = [0.0, 0.0, 0.0, 0.008, 0.008, 0.01, 0, 0, 0, 0]
+    hole = [0.0, 0.0, 0.0, 0.01, 0.01, 2.0, 0, 0, 0, 0]
+    dut = Shape(np.array([solid, hole]), (False, False), (True, False))
+    assert dut.box(0.0).dims == pytest.approx([0.008, 0.008, 0.01], abs=1e-9)
+
+
 def test_a_merged_zone_reads_the_signal_weighted_mean_depth():
     """Half a zone's sub-rays on a top at 0.3 m, half on the table at 0.5 m: each returns
     1 / d^2, so the zone reads (32 / 0.3 + 32 / 0.5) / (32 / 0.09 + 32 / 0.25) = 0.3529 m;

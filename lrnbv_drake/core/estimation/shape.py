@@ -116,6 +116,8 @@ class Shape:
             return OrientedBox(np.array([x[0], x[1], table + height / 2]),
                                np.array([x[3], x[4], height]), float(x[2]))
         points = self.footprint()
+        if len(points) == 0:  # holes over every solid (a search's trial): the solids' box
+            points = np.concatenate([_outline(x) for x in solids])
         return OrientedBox.from_points(np.c_[points, np.full(len(points), table + height)],
                                        floor_z=table)
 
