@@ -16,11 +16,14 @@ import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from pydrake.systems.framework import Context, Diagram
 
+from lrnbv_drake.core.sensing.sensor import ToFFrame
 from lrnbv_drake.core.sensing.tof_protocol import encode_frame
 from lrnbv_drake.drivers.tof_serial import SensorError, ToFSerialReader
 from lrnbv_drake.station.scenario import Scenario
 from lrnbv_drake.station.sim_cell import make_sim_cell
+from lrnbv_drake.systems.tof_sensor import ToFSensor
 
 _log = logging.getLogger(__name__)
 
@@ -103,7 +106,8 @@ class SimulatedToFBoard:
                 _log.exception("simulated board: rendering a frame failed; the board stops")
                 return
 
-    def _render(self, cell, context, tof, sequence: int, previous):
+    def _render(self, cell: Diagram, context: Context, tof: ToFSensor, sequence: int,
+                previous: ToFFrame | None) -> ToFFrame:
         """The frame `sequence` at the robot's current joints."""
         cell.GetInputPort("ur5e.position").FixValue(context, np.asarray(self._joints(), float))
         return tof.CaptureFrame(tof.GetMyContextFromRoot(context), sequence=sequence,

@@ -91,33 +91,33 @@ class Shape:
         """(n, 2) points whose convex hull is the material's footprint's: the solids'
         outlines outside every hole, and the holes' outlines inside a solid (a hole that
         cuts a solid's end off moves its end)."""
-        solids = [x for x, solid in zip(self.parts, self.solid, strict=True) if solid]
-        holes = [x for x, solid in zip(self.parts, self.solid, strict=True) if not solid]
-        outlines = [_outline(x) for x in solids + holes]
-        points = np.concatenate(outlines)
-        of_solid = np.arange(len(points)) < sum(len(o) for o in outlines[:len(solids)])
-        in_solid, in_hole = of_solid.copy(), np.zeros(len(points), bool)
-        for x in solids:
-            in_solid |= _within(x, points, 1e-9)
-        for x in holes:
-            in_hole |= _within(x, points, -1e-9)
-        material = in_solid & ~in_hole
-        return points[material]
+        outline, uncut, inner = self._material()
+        return np.concatenate([outline[uncut], inner])
+
+    def _material(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The solids' outline points, which of them no hole covers, and the holes' outline
+        points that lie in a solid and in no other hole."""
+        solids = self.parts[np.array(self.solid)]
+        holes = self.parts[~np.array(self.solid)]
+        outline = np.concatenate([_outline(x) for x in solids])
+        inner = np.concatenate([_outline(x) for x in holes] or [np.zeros((0, 2))])
+        inner = inner[_covered(solids, inner, 1e-9) & ~_covered(holes, inner, -1e-9)]
+        return outline, ~_covered(holes, outline, -1e-9), inner
 
     def box(self, table: float) -> OrientedBox:
         """The material's bounding box: a single solid's own box where no hole cuts its
-        outline, else the minimum-area box of the footprint (`footprint`)."""
+        outline, else the minimum-area box of the footprint (`footprint`); the solids' where
+        holes cover them all (a search's trial)."""
         solids = self.parts[np.array(self.solid)]
-        holes = self.parts[~np.array(self.solid)]
         height = float(solids[:, 5].max())
-        if len(solids) == 1 and not any(_within(h, _outline(solids[0]), -1e-9).any()
-                                        for h in holes):
+        outline, uncut, inner = self._material()
+        if len(solids) == 1 and uncut.all():
             x = solids[0]
             return OrientedBox(np.array([x[0], x[1], table + height / 2]),
                                np.array([x[3], x[4], height]), float(x[2]))
-        points = self.footprint()
-        if len(points) == 0:  # holes over every solid (a search's trial): the solids' box
-            points = np.concatenate([_outline(x) for x in solids])
+        points = np.concatenate([outline[uncut], inner])
+        if len(points) == 0:
+            points = outline
         return OrientedBox.from_points(np.c_[points, np.full(len(points), table + height)],
                                        floor_z=table)
 
@@ -198,6 +198,14 @@ def _outline(x: np.ndarray) -> np.ndarray:
     c, sn = math.cos(x[2]), math.sin(x[2])
     world = local @ np.array([[c, sn], [-sn, c]]) + x[:2]
     return world[_within(x, world, 1e-9)]
+
+
+def _covered(parts: np.ndarray, points: np.ndarray, tol: float) -> np.ndarray:
+    """(n,) whether each of `points` lies in any of `parts` (`_within`)."""
+    covered = np.zeros(len(points), bool)
+    for x in parts:
+        covered |= _within(x, points, tol)
+    return covered
 
 
 def _within(x: np.ndarray, points: np.ndarray, tol: float) -> np.ndarray:
